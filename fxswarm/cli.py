@@ -1,0 +1,60 @@
+"""The ``fxswarm`` command: one subcommand per module, loaded on demand.
+
+Each subcommand module exposes ``add_arguments(parser)`` and
+``main(args) -> int``; this file only names them, so that adding a command
+touches one line here and ``fxswarm sim`` never imports Zenoh or Rerun.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import sys
+
+COMMANDS: dict[str, tuple[str, str]] = {
+    "sim": ("fxswarm.runtime.sim_cli", "run a scenario in one process (lock-step, in-memory bus)"),
+    "run": ("fxswarm.runtime.launcher", "run a scenario as one OS process per role over Zenoh"),
+    "world": ("fxswarm.world.process", "the world process"),
+    "leader": ("fxswarm.leader.process", "the virtual leader process"),
+    "agent": ("fxswarm.agent.process", "one robot's process"),
+    "logger": ("fxswarm.logger.process", "the Rerun logger process"),
+    "router": ("fxswarm.runtime.router", "a Zenoh router (a Python session in router mode)"),
+    "report": ("fxswarm.report", "PNG figures and index.md from a run folder"),
+    "sweep": ("fxswarm.study.sweep", "settling time against initial error, per controller variant"),
+    "compose": ("fxswarm.runtime.compose", "write a docker-compose file for a scenario"),
+}
+
+
+def _available() -> dict[str, tuple[str, str]]:
+    """The commands whose module is installed (the rest are listed once they land)."""
+    out = {}
+    for name, spec in COMMANDS.items():
+        try:
+            found = importlib.util.find_spec(spec[0]) is not None
+        except ModuleNotFoundError:
+            found = False
+        if found:
+            out[name] = spec
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="fxswarm", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    argv = sys.argv[1:] if argv is None else argv
+    chosen = next((a for a in argv if not a.startswith("-")), None)
+    for name, (module_name, help_text) in _available().items():
+        sub_parser = sub.add_parser(name, help=help_text, description=help_text)
+        if name == chosen:  # import only the command that runs: `sim` never loads Zenoh or Rerun
+            importlib.import_module(module_name).add_arguments(sub_parser)
+    args = parser.parse_args(argv)
+    module = importlib.import_module(COMMANDS[args.command][0])
+    try:
+        return int(module.main(args) or 0)
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

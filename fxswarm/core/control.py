@@ -1,0 +1,231 @@
+"""The fixed-time behavioural control law, as pure functions on numpy arrays.
+
+Equation references are to the LaTeX labels of
+``shared/paper/fixed-time-behavioral-formation.tex`` (the paper numbers its
+equations by those labels' order): (11) the estimator, (v1) the avoidance
+behaviour, (v2) the formation behaviour, (v) the null-space merge.
+Where SPEC.md settles a point the paper leaves open, the docstring says so.
+
+All vectors are in R^3 (shape ``(3,)``); distances in metres, times in
+seconds. No I/O, no clocks, no globals.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Below this norm a behaviour's Jacobian pseudo-inverse is undefined and the
+#: guards of SPEC sections 3-4 take over.
+EPS = 1e-9
+
+#: The fixed direction the avoidance behaviour pushes along when a robot sits
+#: exactly on the object it avoids (SPEC section 4 guard): straight up, since
+#: the paper's swarm climbs and up is away from the ground plane.
+COINCIDENT_PUSH_DIRECTION = np.array([0.0, 0.0, 1.0])
+
+
+def sig(x: np.ndarray | float, a: float) -> np.ndarray | float:
+    """``|x|^a * sign(x)`` element by element (the paper's ``x^[a]``)."""
+    return np.sign(x) * np.abs(x) ** a
+
+
+@dataclass(frozen=True)
+class BehaviourGains:
+    """Gains shared by the two behaviours (paper section 3; SPEC section 8).
+
+    ``lam`` is the task gain (``lam_f`` or ``lam_o``); the exponents satisfy
+    ``r1*r0 > 1`` and ``r2*r0 < 1`` for a fixed-time law.
+    """
+
+    lam: float
+    b1: float
+    b2: float
+    r0: float
+    r1: float
+    r2: float
+
+
+@dataclass(frozen=True)
+class EstimatorGains:
+    """Gains of the distributed estimator, paper eq. (11)."""
+
+    K1: float
+    K2: float
+    K3: float
+    r3: float
+    r4: float
+    r5: float
+    r6: float
+    power: str = "pairwise"  # "pairwise" (eq. (11) as printed) or "aggregate" (its proof)
+
+
+def task_rate(x: float, g: BehaviourGains) -> float:
+    """``lam*(b1*x^r1 + b2*x^r2)^r0`` for ``x >= 0``: the decay rate of a task function.
+
+    Both behaviours make their task function obey ``dx/dt = -task_rate(x)``.
+    """
+    if x <= 0.0:
+        return 0.0
+    return g.lam * (g.b1 * x**g.r1 + g.b2 * x**g.r2) ** g.r0
+
+
+def estimator_rate(
+    ph_i: np.ndarray,
+    neighbours: np.ndarray,
+    weights: np.ndarray,
+    gains: EstimatorGains,
+) -> np.ndarray:
+    """``dph_i/dt`` of the fixed-time estimator, paper eq. (11).
+
+    ph_i: this robot's estimate of the leader, shape (3,).
+    neighbours: the estimates it holds of its neighbours, shape (m, 3); the
+        leader, when heard, is one more row with ``ph_0 := p0``.
+    weights: ``a_ij`` (or ``b_i`` for the leader row), shape (m,).
+    With no neighbour at all (m = 0) the rate is zero.
+
+    ``power="pairwise"`` applies ``sig(., r3/r4)`` and ``sig(., r5/r6)`` to each
+    difference before summing (eq. (11) as printed); ``"aggregate"`` applies
+    them to the weighted sum (the form its proof uses; SPEC section 2).
+    """
+    if len(weights) == 0:
+        return np.zeros(3)
+    diff = ph_i - neighbours  # (m, 3)
+    eta3 = weights @ diff
+    if gains.power == "aggregate":
+        eta1 = sig(eta3, gains.r3 / gains.r4)
+        eta2 = sig(eta3, gains.r5 / gains.r6)
+    else:
+        eta1 = weights @ sig(diff, gains.r3 / gains.r4)
+        eta2 = weights @ sig(diff, gains.r5 / gains.r6)
+    return -gains.K1 * eta1 - gains.K2 * eta2 - gains.K3 * np.sign(eta3)  # eq. (11)
+
+
+def formation_error(p_i: np.ndarray, ph_i: np.ndarray, p_i0: np.ndarray) -> np.ndarray:
+    """``e_i = p_i - ph_i - p_i0``: the formation task's error vector (eq. (ctbf)), m."""
+    return p_i - ph_i - p_i0
+
+
+def formation_velocity(
+    e_i: np.ndarray,
+    dph_i: np.ndarray,
+    dp_i0: np.ndarray,
+    g: BehaviourGains,
+) -> np.ndarray:
+    """The formation behaviour's velocity ``v_if``, paper eq. (v2), m/s.
+
+    With ``J_if = e^T``, ``J_ihat = J_i0 = -e^T`` and ``rho_tilde = -rho``
+    substituted (SPEC section 3), so that ``d rho/dt = -task_rate(rho)``.
+    Guard: for ``|e| < EPS`` the pseudo-inverse is undefined and the robot
+    just follows its reference, ``dph_i + dp_i0``.
+    """
+    feedforward = dph_i + dp_i0
+    e2 = float(e_i @ e_i)
+    if e2 < EPS * EPS:
+        return feedforward
+    rho = 0.5 * e2
+    return e_i / e2 * (-task_rate(rho, g) + float(e_i @ feedforward))  # eq. (v2)
+
+
+def avoidance_task(u: np.ndarray, d: float) -> float:
+    """``rt = d^2/2 - |u|^2/2``, the avoidance task error (eq. (2)); active iff positive."""
+    return 0.5 * d * d - 0.5 * float(u @ u)
+
+
+def avoidance_velocity(u: np.ndarray, vo: np.ndarray, d: float, g: BehaviourGains) -> np.ndarray:
+    """The avoidance behaviour's velocity ``v_io``, paper eq. (v1), m/s.
+
+    u: ``p_i - po``, from the nearest object to the robot, shape (3,).
+    vo: that object's velocity. Meant for the active case (``rt > 0``), where
+    ``d rt/dt = -task_rate(rt)``. Guard: at ``|u| < EPS`` the direction is
+    undefined; push along :data:`COINCIDENT_PUSH_DIRECTION` at the task rate.
+    """
+    rt = avoidance_task(u, d)
+    u2 = float(u @ u)
+    if u2 < EPS * EPS:
+        return COINCIDENT_PUSH_DIRECTION * task_rate(rt, g) / d
+    return u / u2 * (task_rate(rt, g) + float(u @ vo))  # eq. (v1)
+
+
+def merged_velocity(v_io: np.ndarray | None, u: np.ndarray, v_if: np.ndarray) -> np.ndarray:
+    """Null-space merge, paper eq. (v): ``v_io + (I - u u^T/|u|^2) v_if``.
+
+    ``v_io is None`` means the avoidance task is inactive: the formation
+    velocity passes unchanged.
+    """
+    if v_io is None:
+        return v_if
+    u2 = float(u @ u)
+    if u2 < EPS * EPS:
+        u = COINCIDENT_PUSH_DIRECTION
+        u2 = 1.0
+    return v_io + v_if - u * (float(u @ v_if) / u2)  # eq. (v)
+
+
+def null_space_projector(u: np.ndarray) -> np.ndarray:
+    """``I - u u^T / |u|^2``, shape (3, 3): the projector eq. (v) applies to ``v_if``."""
+    u2 = float(u @ u)
+    if u2 < EPS * EPS:
+        u, u2 = COINCIDENT_PUSH_DIRECTION, 1.0
+    return np.eye(3) - np.outer(u, u) / u2
+
+
+def limit_speed(v: np.ndarray, v_max: float | None) -> tuple[np.ndarray, bool]:
+    """Clip ``|v|`` to ``v_max`` (not in the paper; off when ``v_max`` is None).
+
+    Returns the velocity and whether the limit bit.
+    """
+    if v_max is None:
+        return v, False
+    speed = math.sqrt(float(v @ v))
+    if speed <= v_max:
+        return v, False
+    return v * (v_max / speed), True
+
+
+@dataclass(frozen=True)
+class ControlOutput:
+    """One robot's control step: the command and what it is made of."""
+
+    v: np.ndarray  # merged (and possibly limited) velocity command, m/s
+    dph: np.ndarray  # estimator rate, m/s
+    e: np.ndarray  # formation error against the robot's own estimate, m
+    avoid_active: bool
+    speed_limited: bool
+
+
+def robot_control(
+    p_i: np.ndarray,
+    ph_i: np.ndarray,
+    neighbours: np.ndarray,
+    weights: np.ndarray,
+    p_i0: np.ndarray,
+    dp_i0: np.ndarray,
+    po: np.ndarray | None,
+    vo: np.ndarray | None,
+    d: float,
+    formation: BehaviourGains,
+    avoidance: BehaviourGains,
+    estimator: EstimatorGains,
+    v_max: float | None = None,
+) -> ControlOutput:
+    """One robot's whole law from local data only: eqs. (11), (v2), (v1), (v).
+
+    ``po``/``vo`` are the nearest object's position and velocity (None when
+    the robot senses nothing). The avoidance task is switched on only inside
+    the repulsive zone of radius ``d`` (SPEC section 4).
+    """
+    dph = estimator_rate(ph_i, neighbours, weights, estimator)
+    e = formation_error(p_i, ph_i, p_i0)
+    v_if = formation_velocity(e, dph, dp_i0, formation)
+    active = False
+    if po is not None:
+        u = p_i - po
+        if avoidance_task(u, d) > 0.0:
+            active = True
+            v_io = avoidance_velocity(u, vo if vo is not None else np.zeros(3), d, avoidance)
+            v_if = merged_velocity(v_io, u, v_if)
+    v, limited = limit_speed(v_if, v_max)
+    return ControlOutput(v=v, dph=dph, e=e, avoid_active=active, speed_limited=limited)

@@ -1,0 +1,194 @@
+"""Messages between roles, and their wire form (msgpack maps) with validation.
+
+Every message carries the schema version, the sender's role and id, a
+sequence number, the tick and the simulation time. :func:`decode` accepts
+only well-formed messages (known version and kind, every field of the right
+type and shape, every number finite) and raises :class:`WireError` naming
+what was wrong otherwise; a node never sees an invalid message.
+
+Vectors travel as lists of 3 floats (msgpack keeps float64 exact, so a
+lock-step run over the wire is bit-identical to the in-memory one).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import msgpack
+import numpy as np
+
+SCHEMA_VERSION = 1
+
+#: Largest magnitude accepted for a coordinate or velocity on the wire (m,
+#: m/s): beyond it a value is a corruption, not a robot.
+MAX_MAGNITUDE = 1e9
+
+
+class WireError(ValueError):
+    """A payload that is not a valid message of this schema."""
+
+
+@dataclass(frozen=True)
+class Message:
+    role: str  # sender's role: "world", "leader", "agent"
+    sender: int  # sender's id (robot id for agents, 0 otherwise)
+    seq: int  # sender's sequence number for this kind of message
+    tick: int  # lock-step tick (real time: the sender's loop count)
+    t: float  # simulation time of the content, s
+
+
+@dataclass(frozen=True)
+class Clock(Message):
+    """The world's tick: everyone may act for ``tick`` at time ``t``."""
+
+
+@dataclass(frozen=True)
+class Sense(Message):
+    """What the world tells robot ``robot`` alone: its position and nearest object."""
+
+    robot: int
+    p: np.ndarray  # (3,) true position, m
+    po: np.ndarray | None  # (3,) nearest object (obstacle or teammate), m; None if there is none
+    vo: np.ndarray | None  # (3,) that object's velocity, m/s
+
+
+@dataclass(frozen=True)
+class LeaderState(Message):
+    """The virtual leader's position ``p0(t)``."""
+
+    p0: np.ndarray  # (3,)
+
+
+@dataclass(frozen=True)
+class Estimate(Message):
+    """A robot's estimate ``ph_i`` of the leader, for its graph neighbours."""
+
+    robot: int
+    ph: np.ndarray  # (3,)
+
+
+@dataclass(frozen=True)
+class Command(Message):
+    """A robot's velocity command, with what it reports about itself."""
+
+    robot: int
+    v: np.ndarray  # (3,) m/s
+    ph: np.ndarray  # (3,) estimate the command was computed from
+    avoid_active: bool
+    flags: int = 0  # bit set of degraded modes (see fxswarm.agent.node)
+
+
+@dataclass(frozen=True)
+class WorldState(Message):
+    """The world's whole state at a tick, for loggers and recorders."""
+
+    p: np.ndarray  # (n, 3) positions
+    v: np.ndarray  # (n, 3) velocities applied
+    ph: np.ndarray  # (n, 3) estimates reported with the commands
+    nearest: np.ndarray  # (n,) distance to the nearest object, m
+    avoid: np.ndarray  # (n,) bool, avoidance active
+    obstacles: np.ndarray  # (m, 3) obstacle positions
+
+
+KINDS: dict[str, type[Message]] = {
+    "clock": Clock, "sense": Sense, "leader": LeaderState, "estimate": Estimate,
+    "command": Command, "state": WorldState,
+}
+_KIND_OF = {cls: name for name, cls in KINDS.items()}
+ROLES = ("world", "leader", "agent", "logger", "test")
+
+# Field types: "vec" (3,), "vec?" (3,) or None, "mat" (n, 3), "row" (n,), "int", "bool".
+_SHAPES: dict[str, str] = {
+    "p": "vec", "po": "vec?", "vo": "vec?", "p0": "vec", "ph": "vec", "v": "vec",
+    "robot": "int", "avoid_active": "bool", "flags": "int",
+}
+_STATE_SHAPES = {"p": "mat", "v": "mat", "ph": "mat", "nearest": "row", "avoid": "boolrow", "obstacles": "mat"}
+
+
+def encode(msg: Message) -> bytes:
+    """The msgpack wire form of ``msg``."""
+    out = {"v": SCHEMA_VERSION, "k": _KIND_OF[type(msg)]}
+    for f in fields(msg):
+        value = getattr(msg, f.name)
+        if isinstance(value, np.ndarray):
+            value = value.tolist()
+        elif isinstance(value, np.generic):
+            value = value.item()
+        out[f.name] = value
+    return msgpack.packb(out, use_bin_type=True)
+
+
+def _finite_number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and abs(x) <= MAX_MAGNITUDE
+
+
+def _check(name: str, shape: str, value):
+    if shape == "int":
+        if not isinstance(value, int) or isinstance(value, bool) or value < 0 or value > 2**53:
+            raise WireError(f"field {name!r}: expected a non-negative integer")
+        return value
+    if shape == "bool":
+        if not isinstance(value, bool):
+            raise WireError(f"field {name!r}: expected a boolean")
+        return value
+    if shape == "vec?" and value is None:
+        return None
+    if shape in ("vec", "vec?"):
+        if not isinstance(value, list) or len(value) != 3 or not all(_finite_number(x) for x in value):
+            raise WireError(f"field {name!r}: expected 3 finite numbers")
+        return np.array(value, dtype=float)
+    if shape == "mat":
+        if not isinstance(value, list) or not all(
+            isinstance(r, list) and len(r) == 3 and all(_finite_number(x) for x in r) for r in value
+        ):
+            raise WireError(f"field {name!r}: expected rows of 3 finite numbers")
+        return np.array(value, dtype=float).reshape(-1, 3)
+    if shape == "row":
+        if not isinstance(value, list) or not all(_finite_number(x) for x in value):
+            raise WireError(f"field {name!r}: expected a list of finite numbers")
+        return np.array(value, dtype=float)
+    if shape == "boolrow":
+        if not isinstance(value, list) or not all(isinstance(x, bool) for x in value):
+            raise WireError(f"field {name!r}: expected a list of booleans")
+        return np.array(value, dtype=bool)
+    raise AssertionError(shape)
+
+
+def decode(payload: bytes) -> Message:
+    """Parse and validate a wire payload; raises :class:`WireError` on anything malformed."""
+    try:
+        raw = msgpack.unpackb(payload, raw=False, strict_map_key=True)
+    except Exception as exc:  # msgpack raises several unrelated types on garbage
+        raise WireError(f"not msgpack: {type(exc).__name__}") from None
+    if not isinstance(raw, dict):
+        raise WireError("not a map")
+    if raw.get("v") != SCHEMA_VERSION:
+        raise WireError(f"unknown schema version {raw.get('v')!r}")
+    cls = KINDS.get(raw.get("k"))  # type: ignore[arg-type]
+    if cls is None:
+        raise WireError(f"unknown message kind {raw.get('k')!r}")
+    role = raw.get("role")
+    if role not in ROLES:
+        raise WireError(f"unknown role {role!r}")
+    t = raw.get("t")
+    if not _finite_number(t):
+        raise WireError("field 't': expected a finite time")
+    values = {"role": role, "t": float(t)}
+    for name in ("sender", "seq", "tick"):
+        values[name] = _check(name, "int", raw.get(name))
+    shapes = _STATE_SHAPES if cls is WorldState else _SHAPES
+    for f in fields(cls):
+        if f.name in values:
+            continue
+        if f.name not in raw:
+            if f.name == "flags":
+                values[f.name] = 0
+                continue
+            raise WireError(f"missing field {f.name!r}")
+        values[f.name] = _check(f.name, shapes[f.name], raw[f.name])
+    if cls is WorldState:
+        n = len(values["p"])
+        if not all(len(values[k]) == n for k in ("v", "ph", "nearest", "avoid")):
+            raise WireError("world state: arrays of different robot counts")
+    return cls(**values)

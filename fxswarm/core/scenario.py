@@ -1,0 +1,394 @@
+"""Scenario files (TOML): load, validate, and describe a swarm run.
+
+Every error names the file, the field path and what was expected, e.g.
+``configs/x.toml: robots[3].position: expected 3 numbers, got 2``. Field
+paths index arrays from 0, as TOML does; robot ids are 1-based (robot
+``robots[k]`` has id ``k+1``), as in the paper.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path as FilePath
+from typing import Any
+
+import numpy as np
+
+from fxswarm.core import motion
+from fxswarm.core.control import BehaviourGains, EstimatorGains
+from fxswarm.core.graph import TOPOLOGIES, adjacency, h_matrix, topology_edges, unreached_robots
+
+
+class ScenarioError(ValueError):
+    """A scenario file is malformed; the message names file, field and expectation."""
+
+
+@dataclass(frozen=True)
+class Robot:
+    """One robot: 1-based id, initial position (m), offset path, initial estimate (m)."""
+
+    id: int
+    position: tuple[float, float, float]
+    offset: motion.Offset
+    estimate: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A validated scenario. Arrays are indexed by robot id - 1."""
+
+    name: str
+    source: str
+    duration: float
+    dt: float
+    seed: int
+    settle_tolerance: float
+    d: float
+    v_max: float | None
+    robots: tuple[Robot, ...]
+    a: np.ndarray = field(repr=False)  # (n, n) symmetric weights a_ij
+    b: np.ndarray = field(repr=False)  # (n,) leader pinning gains b_i
+    leader: motion.Path
+    obstacles: tuple[motion.Path, ...]
+    formation: BehaviourGains
+    avoidance: BehaviourGains
+    estimator: EstimatorGains
+    raw: dict = field(repr=False, default_factory=dict)  # the parsed TOML, for sections owned elsewhere
+
+    @property
+    def n(self) -> int:
+        return len(self.robots)
+
+    @property
+    def ticks(self) -> int:
+        return int(round(self.duration / self.dt))
+
+    @property
+    def H(self) -> np.ndarray:
+        return h_matrix(self.a, self.b)
+
+    def neighbours(self, robot_id: int) -> list[int]:
+        """Graph neighbours (1-based ids, ascending) of a robot."""
+        return [int(j) + 1 for j in np.flatnonzero(self.a[robot_id - 1] > 0)]
+
+    def is_pinned(self, robot_id: int) -> bool:
+        return bool(self.b[robot_id - 1] > 0)
+
+
+# --- reading TOML with field paths -------------------------------------------------
+
+
+class _Fields:
+    """Typed access to a TOML table that reports errors with file and field path."""
+
+    def __init__(self, source: str, table: dict, path: str = "") -> None:
+        self.source, self.table, self.path = source, table, path
+
+    def fail(self, key: str | None, expected: str, got: Any = None, *, show_got: bool = True) -> None:
+        where = self.sub_path(key) if key is not None else (self.path or "(top level)")
+        got_text = f", got {_describe(got)}" if show_got else ""
+        raise ScenarioError(f"{self.source}: {where}: expected {expected}{got_text}")
+
+    def sub_path(self, key: str | int) -> str:
+        if isinstance(key, int):
+            return f"{self.path}[{key}]"
+        return f"{self.path}.{key}" if self.path else key
+
+    def has(self, key: str) -> bool:
+        return key in self.table
+
+    def table_at(self, key: str, required: bool = False) -> "_Fields":
+        value = self.table.get(key, None)
+        if value is None:
+            if required:
+                self.fail(key, "a table", show_got=False)
+            value = {}
+        if not isinstance(value, dict):
+            self.fail(key, "a table", value)
+        return _Fields(self.source, value, self.sub_path(key))
+
+    def tables(self, key: str, required: bool = False) -> list["_Fields"]:
+        value = self.table.get(key, None)
+        if value is None:
+            if required:
+                self.fail(key, "an array of tables ([[" + key + "]])", show_got=False)
+            return []
+        if not isinstance(value, list):
+            self.fail(key, "an array of tables", value)
+        out = []
+        for k, item in enumerate(value):
+            if not isinstance(item, dict):
+                _Fields(self.source, {}, self.sub_path(key)).fail(k, "a table", item)
+            out.append(_Fields(self.source, item, f"{self.sub_path(key)}[{k}]"))
+        return out
+
+    def number(self, key: str, default: float | None = None, *, positive: bool = False,
+               nonnegative: bool = False) -> float:
+        if key not in self.table:
+            if default is None:
+                self.fail(key, "a number", show_got=False)
+            return float(default)
+        value = self.table[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            self.fail(key, "a finite number", value)
+        if positive and value <= 0:
+            self.fail(key, "a number > 0", value)
+        if nonnegative and value < 0:
+            self.fail(key, "a number >= 0", value)
+        return float(value)
+
+    def optional_number(self, key: str, *, positive: bool = False) -> float | None:
+        if key not in self.table:
+            return None
+        return self.number(key, positive=positive)
+
+    def integer(self, key: str, default: int) -> int:
+        value = self.table.get(key, default)
+        if isinstance(value, bool) or not isinstance(value, int):
+            self.fail(key, "an integer", value)
+        return value
+
+    def string(self, key: str, default: str | None = None, choices: tuple[str, ...] | None = None) -> str:
+        if key not in self.table:
+            if default is None:
+                self.fail(key, "a string" + (f" (one of {', '.join(choices)})" if choices else ""),
+                          show_got=False)
+            return default
+        value = self.table[key]
+        if not isinstance(value, str):
+            self.fail(key, "a string", value)
+        if choices is not None and value not in choices:
+            self.fail(key, f"one of {', '.join(repr(c) for c in choices)}", value)
+        return value
+
+    def vector(self, key: str, default: tuple | None = None) -> tuple[float, float, float]:
+        if key not in self.table:
+            if default is None:
+                self.fail(key, "3 numbers", show_got=False)
+            return default
+        return _vector(self, key, self.table[key])
+
+    def numbers(self, key: str) -> list[float]:
+        value = self.table.get(key)
+        if not isinstance(value, list) or not all(_is_num(x) for x in value):
+            self.fail(key, "a list of numbers", value)
+        return [float(x) for x in value]
+
+    def check_known(self, allowed: set[str]) -> None:
+        for key in self.table:
+            if key not in allowed:
+                self.fail(key, f"no such field here (known: {', '.join(sorted(allowed))})", show_got=False)
+
+
+def _is_num(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _vector(f: _Fields, key: str | int, value: Any) -> tuple[float, float, float]:
+    if not isinstance(value, list):
+        f.fail(key, "3 numbers", value)
+    if len(value) != 3:
+        f.fail(key, "3 numbers", f"{len(value)}", show_got=True)
+    if not all(_is_num(x) for x in value):
+        f.fail(key, "3 finite numbers", value)
+    return (float(value[0]), float(value[1]), float(value[2]))
+
+
+def _describe(value: Any) -> str:
+    if isinstance(value, str) and value.isdigit():
+        return value  # a count, already phrased by the caller
+    if isinstance(value, dict):
+        return "a table"
+    if isinstance(value, list):
+        return f"a list of {len(value)}"
+    return repr(value)
+
+
+# --- sections ----------------------------------------------------------------------
+
+
+def _path(f: _Fields, kinds: tuple[str, ...]) -> motion.Path:
+    kind = f.string("kind", choices=kinds)
+    if kind == "static":
+        f.check_known({"kind", "position"})
+        return motion.Static(f.vector("position"))
+    if kind == "constant_velocity":
+        f.check_known({"kind", "position", "velocity"})
+        return motion.ConstantVelocity(f.vector("position"), f.vector("velocity"))
+    if kind == "helix":
+        f.check_known({"kind", "centre", "radius", "rate", "climb", "phase"})
+        return motion.Helix(f.vector("centre", (0.0, 0.0, 0.0)), f.number("radius", nonnegative=True),
+                            f.number("rate"), f.number("climb", 0.0), f.number("phase", 0.0))
+    if kind == "circle":
+        f.check_known({"kind", "centre", "radius", "rate", "phase"})
+        return motion.Circle(f.vector("centre"), f.number("radius", nonnegative=True),
+                             f.number("rate"), f.number("phase", 0.0))
+    # waypoints
+    f.check_known({"kind", "times", "points"})
+    times = f.numbers("times")
+    points_raw = f.table.get("points")
+    if not isinstance(points_raw, list):
+        f.fail("points", "a list of 3-number lists", points_raw)
+    pf = _Fields(f.source, {}, f.sub_path("points"))
+    points = tuple(_vector(pf, k, p) for k, p in enumerate(points_raw))
+    if len(times) < 1 or len(times) != len(points):
+        f.fail("times", f"as many times as points ({len(points)})", f"{len(times)}")
+    if any(t1 <= t0 for t0, t1 in zip(times, times[1:])):
+        f.fail("times", "strictly increasing times", times)
+    return motion.Waypoints(tuple(times), points)
+
+
+LEADER_KINDS = ("static", "constant_velocity", "helix", "waypoints")
+OBSTACLE_KINDS = ("static", "constant_velocity", "circle", "helix", "waypoints")
+
+
+def _behaviour(f: _Fields, lam_key: str, lam_default: float) -> BehaviourGains:
+    return BehaviourGains(
+        lam=f.number(lam_key, lam_default, positive=True),
+        b1=f.number("b1", positive=True), b2=f.number("b2", positive=True),
+        r0=f.number("r0", positive=True), r1=f.number("r1", positive=True), r2=f.number("r2", positive=True),
+    )
+
+
+def _check_fixed_time(f: _Fields, g: BehaviourGains) -> None:
+    if g.r1 * g.r0 <= 1.0:
+        f.fail("r1", f"r1*r0 > 1 for a fixed-time law (r1*r0 = {g.r1 * g.r0:g})", show_got=False)
+    if g.r2 * g.r0 >= 1.0:
+        f.fail("r2", f"r2*r0 < 1 for a fixed-time law (r2*r0 = {g.r2 * g.r0:g})", show_got=False)
+
+
+def parse(data: dict, source: str = "<scenario>") -> Scenario:
+    """Validate a parsed TOML document into a :class:`Scenario`."""
+    top = _Fields(source, data)
+    top.check_known({"scenario", "gains", "estimator", "graph", "leader", "formation", "robots",
+                     "obstacles", "faults", "controller", "logging"})
+    sc = top.table_at("scenario", required=True)
+    sc.check_known({"name", "duration", "dt", "seed", "settle_tolerance", "d", "v_max"})
+    name = sc.string("name", FilePath(source).stem)
+    duration = sc.number("duration", positive=True)
+    dt = sc.number("dt", positive=True)
+    if dt > duration:
+        sc.fail("dt", f"a control period no longer than the duration ({duration:g} s)", dt)
+
+    gf = top.table_at("gains", required=True)
+    gf.check_known({"b1", "b2", "r0", "r1", "r2", "lam_f", "lam_o", "K1", "K2", "K3", "r3", "r4", "r5", "r6"})
+    formation = _behaviour(gf, "lam_f", 1.0)
+    avoidance = _behaviour(gf, "lam_o", 1.0)
+    _check_fixed_time(gf, formation)
+    ef = top.table_at("estimator")
+    ef.check_known({"power"})
+    estimator = EstimatorGains(
+        K1=gf.number("K1", positive=True), K2=gf.number("K2", positive=True), K3=gf.number("K3", positive=True),
+        r3=gf.number("r3", positive=True), r4=gf.number("r4", positive=True),
+        r5=gf.number("r5", positive=True), r6=gf.number("r6", positive=True),
+        power=ef.string("power", "pairwise", ("pairwise", "aggregate")),
+    )
+    if estimator.r3 / estimator.r4 <= 1.0:
+        gf.fail("r3", f"r3/r4 > 1 (r3/r4 = {estimator.r3 / estimator.r4:g})", show_got=False)
+    if estimator.r5 / estimator.r6 >= 1.0:
+        gf.fail("r5", f"r5/r6 < 1 (r5/r6 = {estimator.r5 / estimator.r6:g})", show_got=False)
+
+    # Offsets: a sinusoid shared by all robots, overridable per robot.
+    ff = top.table_at("formation")
+    ff.check_known({"amplitude", "omega", "phase"})
+    zero = (0.0, 0.0, 0.0)
+    shared = {k: ff.vector(k, zero) for k in ("amplitude", "omega", "phase")}
+
+    robot_tables = top.tables("robots", required=True)
+    if not robot_tables:
+        top.fail("robots", "at least one [[robots]] table", show_got=False)
+    robots = []
+    for k, rf in enumerate(robot_tables):
+        rf.check_known({"position", "offset", "estimate", "amplitude", "omega", "phase"})
+        offset = motion.Offset(
+            rf.vector("offset"),
+            *(rf.vector(key, shared[key]) for key in ("amplitude", "omega", "phase")),
+        )
+        robots.append(Robot(k + 1, rf.vector("position"), offset, rf.vector("estimate", zero)))
+    n = len(robots)
+
+    grf = top.table_at("graph", required=True)
+    grf.check_known({"topology", "edges", "weights", "pinned", "pin_gain"})
+    if grf.has("edges") == grf.has("topology"):
+        grf.fail("topology", "exactly one of 'topology' (" + ", ".join(TOPOLOGIES) + ") or 'edges'",
+                 show_got=False)
+    if grf.has("topology"):
+        edges = topology_edges(grf.string("topology", choices=TOPOLOGIES), n)
+        weights = None
+    else:
+        raw_edges = grf.table.get("edges")
+        if not isinstance(raw_edges, list):
+            grf.fail("edges", "a list of [i, j] robot id pairs", raw_edges)
+        edges = []
+        ef_ = _Fields(source, {}, grf.sub_path("edges"))
+        for k, e in enumerate(raw_edges):
+            if (not isinstance(e, list) or len(e) != 2 or not all(isinstance(x, int) and not isinstance(x, bool)
+                                                                  for x in e)):
+                ef_.fail(k, "a pair [i, j] of robot ids", e)
+            if not all(1 <= x <= n for x in e) or e[0] == e[1]:
+                ef_.fail(k, f"two different robot ids in 1..{n}", e)
+            edges.append((e[0], e[1]))
+        weights = grf.numbers("weights") if grf.has("weights") else None
+        if weights is not None:
+            if len(weights) != len(edges):
+                grf.fail("weights", f"one weight per edge ({len(edges)})", f"{len(weights)}")
+            if any(w < 0 for w in weights):
+                grf.fail("weights", "weights >= 0", weights)
+    raw_pinned = grf.table.get("pinned")
+    if not isinstance(raw_pinned, list) or not all(isinstance(x, int) and not isinstance(x, bool)
+                                                   for x in raw_pinned):
+        grf.fail("pinned", "a list of the robot ids that hear the leader", raw_pinned)
+    if not raw_pinned:
+        grf.fail("pinned", "at least one robot that hears the leader (H = L + diag(b) must be positive "
+                 "definite)", raw_pinned)
+    for x in raw_pinned:
+        if not 1 <= x <= n:
+            grf.fail("pinned", f"robot ids in 1..{n}", raw_pinned)
+    pin_gain = grf.number("pin_gain", 1.0, positive=True)
+    a = adjacency(n, edges, weights)
+    b = np.zeros(n)
+    b[[x - 1 for x in raw_pinned]] = pin_gain
+    lost = unreached_robots(a, b)
+    if lost:
+        grf.fail(None, "a connected graph in which every robot reaches one that hears the leader "
+                 f"(H = L + diag(b) positive definite); robots {lost} are cut off from pinned robots "
+                 f"{sorted(raw_pinned)}", show_got=False)
+
+    leader = _path(top.table_at("leader", required=True), LEADER_KINDS)
+    obstacles = tuple(_path(of, OBSTACLE_KINDS) for of in top.tables("obstacles"))
+
+    scenario = Scenario(
+        name=name, source=source, duration=duration, dt=dt, seed=sc.integer("seed", 0),
+        settle_tolerance=sc.number("settle_tolerance", 0.2, positive=True),
+        d=sc.number("d", positive=True), v_max=sc.optional_number("v_max", positive=True),
+        robots=tuple(robots), a=a, b=b, leader=leader, obstacles=obstacles,
+        formation=formation, avoidance=avoidance, estimator=estimator, raw=data,
+    )
+    leader_speed = leader.max_speed_inf(duration)
+    if estimator.K3 < leader_speed:
+        warnings.warn(
+            f"{source}: gains.K3 = {estimator.K3:g} is below the leader's top speed per axis "
+            f"({leader_speed:g} m/s): the estimator's fixed-time guarantee (Assumption 1) does not hold",
+            ScenarioWarning, stacklevel=2,
+        )
+    return scenario
+
+
+class ScenarioWarning(UserWarning):
+    """A scenario is valid but breaks an assumption of the paper."""
+
+
+def load(path: str | FilePath) -> Scenario:
+    """Read and validate a scenario file; raises :class:`ScenarioError` naming file and field."""
+    source = str(path)
+    try:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+    except FileNotFoundError:
+        raise ScenarioError(f"{source}: no such scenario file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{source}: not valid TOML: {exc}") from None
+    return parse(data, source)

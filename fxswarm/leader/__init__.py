@@ -1,0 +1,1 @@
+"""The leader role: the virtual leader's trajectory (node + process entry point)."""

@@ -1,0 +1,1 @@
+"""Runners: the in-process simulator, the role processes, the launcher."""

@@ -1,0 +1,1 @@
+"""The world role: true robot positions, obstacles and the clock (node + process entry point)."""

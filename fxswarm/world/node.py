@@ -1,0 +1,200 @@
+"""The world node: integrates the robots, moves the obstacles, tells each robot what it senses.
+
+Sans I/O. Lock-step: :meth:`start` emits tick 0; every ``Command(k)`` is
+held; once all robots' commands for tick ``k`` are in (or :meth:`timeout`
+is called), it integrates ``p += dt * v``, records the tick and emits tick
+``k+1``. Real time: :meth:`advance` integrates on the commands it holds.
+It records the whole run for ``trajectory.npz``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fxswarm.core import bus as topics
+from fxswarm.core.messages import Clock, Command, Message, Sense, WorldState
+from fxswarm.core.scenario import Scenario
+
+
+def nearest_objects(p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, obstacle_v: np.ndarray):
+    """For each robot, its nearest object among the obstacles and the other robots.
+
+    p, v: robots' positions and velocities (n, 3); obstacles, obstacle_v: (m, 3).
+    Returns ``(po, vo, dist, is_obstacle)`` of shapes (n, 3), (n, 3), (n,), (n,),
+    and ``obstacle_dist`` (n,): the distance to the nearest obstacle alone
+    (inf without obstacles). With one robot and no obstacle, ``dist`` is inf.
+    """
+    n = len(p)
+    objects = np.concatenate([obstacles, p])
+    object_v = np.concatenate([obstacle_v, v])
+    diff = p[:, None, :] - objects[None, :, :]
+    dist = np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
+    m = len(obstacles)
+    dist[np.arange(n), m + np.arange(n)] = np.inf  # a robot is not its own nearest object
+    obstacle_dist = dist[:, :m].min(axis=1) if m else np.full(n, np.inf)
+    k = dist.argmin(axis=1)
+    return objects[k], object_v[k], dist[np.arange(n), k], k < m, obstacle_dist
+
+
+class WorldNode:
+    """The world of scenario ``sc``: robots' true state, obstacles, the clock, the record."""
+
+    def __init__(self, scenario: Scenario, record: bool = True) -> None:
+        self.sc = scenario
+        n, ticks = scenario.n, scenario.ticks
+        self.p = np.array([r.position for r in scenario.robots], dtype=float)
+        self.v = np.zeros((n, 3))  # held commands (zero until a robot speaks)
+        self.ph = np.array([r.estimate for r in scenario.robots], dtype=float)
+        self.avoid = np.zeros(n, dtype=bool)
+        self.tick = 0
+        self.commands: dict[int, Command] = {}  # commands received for the current tick
+        self.missed_ticks = 0
+        self.misses = np.zeros(n, dtype=int)
+        self.seq = 0
+        self.done = False
+        self._sensed: tuple | None = None
+        self.record = record
+        if record:
+            self.rec_t = np.arange(ticks) * scenario.dt
+            self.rec_p = np.zeros((ticks, n, 3))
+            self.rec_ph = np.zeros((ticks, n, 3))
+            self.rec_v = np.zeros((ticks, n, 3))
+            self.rec_near = np.zeros((ticks, n))
+            self.rec_near_obstacle = np.zeros((ticks, n))
+            self.rec_avoid = np.zeros((ticks, n), dtype=bool)
+            self.rec_obstacles = np.zeros((ticks, len(scenario.obstacles), 3))
+
+    @property
+    def t(self) -> float:
+        return self.tick * self.sc.dt
+
+    def subscriptions(self) -> list[str]:
+        return [topics.command_topic(r.id) for r in self.sc.robots]
+
+    def obstacle_state(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        obs = self.sc.obstacles
+        if not obs:
+            return np.zeros((0, 3)), np.zeros((0, 3))
+        return np.array([o.position(t) for o in obs]), np.array([o.velocity(t) for o in obs])
+
+    # --- lock-step ----------------------------------------------------------------------
+
+    def start(self) -> list[topics.Outgoing]:
+        """Emit tick 0."""
+        return self._emit_tick()
+
+    def handle(self, topic: str, msg: Message) -> list[topics.Outgoing]:
+        if not isinstance(msg, Command) or self.done:
+            return []
+        if msg.tick == self.tick:
+            self.commands[msg.robot] = msg
+            if len(self.commands) == self.sc.n:
+                return self._finish_tick()
+        elif msg.tick > self.tick:
+            return []  # from the future: cannot happen in lock-step; ignore
+        return []
+
+    def waiting_for(self) -> list[int]:
+        """Robots whose command for the current tick has not arrived."""
+        return [r.id for r in self.sc.robots if r.id not in self.commands]
+
+    def timeout(self) -> list[topics.Outgoing]:
+        """A tick's deadline passed: hold the last command of each silent robot and go on."""
+        if self.done:
+            return []
+        missing = self.waiting_for()
+        self.missed_ticks += 1 if missing else 0
+        for rid in missing:
+            self.misses[rid - 1] += 1
+        return self._finish_tick()
+
+    def _finish_tick(self) -> list[topics.Outgoing]:
+        for rid, cmd in self.commands.items():
+            self.v[rid - 1] = cmd.v
+            self.ph[rid - 1] = cmd.ph
+            self.avoid[rid - 1] = cmd.avoid_active
+        self.commands = {}
+        out = [self._state_message()]
+        self._record()
+        self.p = self.p + self.sc.dt * self.v  # explicit Euler (SPEC section 7)
+        self.tick += 1
+        if self.tick >= self.sc.ticks:
+            self.done = True
+            return out
+        return out + self._emit_tick()
+
+    # --- real time ----------------------------------------------------------------------
+
+    def take_command(self, msg: Command) -> None:
+        """Real time: hold a robot's latest command (zero-order hold)."""
+        self.v[msg.robot - 1] = msg.v
+        self.ph[msg.robot - 1] = msg.ph
+        self.avoid[msg.robot - 1] = msg.avoid_active
+
+    def advance(self, dt: float) -> list[topics.Outgoing]:
+        """Real time: record, integrate ``dt`` seconds on the held commands, emit the next tick."""
+        out = [self._state_message()]
+        self._record()
+        self.p = self.p + dt * self.v
+        self.tick += 1
+        if self.tick >= self.sc.ticks:
+            self.done = True
+            return out
+        return out + self._emit_tick()
+
+    # --- shared -------------------------------------------------------------------------
+
+    def _sense_now(self):
+        t = self.t
+        obstacles, obstacle_v = self.obstacle_state(t)
+        po, vo, dist, _, obstacle_dist = nearest_objects(self.p, self.v, obstacles, obstacle_v)
+        self._sensed = (obstacles, dist, obstacle_dist)
+        return po, vo, dist
+
+    def _emit_tick(self) -> list[topics.Outgoing]:
+        t, k = self.t, self.tick
+        po, vo, dist = self._sense_now()
+        self.seq += 1
+        out: list[topics.Outgoing] = [(topics.CLOCK, Clock("world", 0, self.seq, k, t))]
+        for i, r in enumerate(self.sc.robots):
+            has = bool(np.isfinite(dist[i]))
+            out.append((topics.sense_topic(r.id), Sense(
+                "world", 0, self.seq, k, t, r.id, self.p[i].copy(),
+                po[i].copy() if has else None, vo[i].copy() if has else None)))
+        return out
+
+    def _state_message(self) -> topics.Outgoing:
+        obstacles, dist, _ = self._sensed if self._sensed is not None else self._sense_now()
+        return topics.WORLD_STATE, WorldState(
+            "world", 0, self.seq, self.tick, self.t, self.p.copy(), self.v.copy(), self.ph.copy(),
+            np.where(np.isfinite(dist), dist, -1.0), self.avoid.copy(), obstacles.copy())
+
+    def _record(self) -> None:
+        k = self.tick
+        if not self.record or k >= self.sc.ticks:
+            return
+        obstacles, dist, obstacle_dist = self._sensed if self._sensed is not None else self._sense_now()
+        self.rec_p[k] = self.p
+        self.rec_ph[k] = self.ph
+        self.rec_v[k] = self.v
+        self.rec_near[k] = dist
+        self.rec_near_obstacle[k] = obstacle_dist
+        self.rec_avoid[k] = self.avoid
+        self.rec_obstacles[k] = obstacles
+
+    def trajectory(self) -> dict[str, np.ndarray]:
+        """The recorded run, as saved to ``trajectory.npz`` (shapes in README)."""
+        ticks = min(self.tick, self.sc.ticks)
+        t = self.rec_t[:ticks]
+        return {
+            "t": t,
+            "p": self.rec_p[:ticks],
+            "ph": self.rec_ph[:ticks],
+            "p0": np.array([self.sc.leader.position(x) for x in t]).reshape(-1, 3),
+            "v": self.rec_v[:ticks],
+            "nearest_distance": self.rec_near[:ticks],
+            "obstacle_distance": self.rec_near_obstacle[:ticks],
+            "avoid_active": self.rec_avoid[:ticks],
+            "obstacles": self.rec_obstacles[:ticks],
+            "offsets": np.array([[r.offset.position(x) for r in self.sc.robots] for x in t]).reshape(-1, self.sc.n, 3),
+        }
