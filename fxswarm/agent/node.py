@@ -8,23 +8,12 @@ sleep: the runners drive it in lock-step or in real time.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from fxswarm.core import bus as topics
 from fxswarm.core.control import robot_control
 from fxswarm.core.messages import Command, Estimate, LeaderState, Message, Sense
 from fxswarm.core.scenario import Scenario
-
-
-@dataclass
-class Held:
-    """The latest message of one sender that this agent holds (zero-order hold)."""
-
-    tick: int
-    t: float
-    value: np.ndarray
 
 
 class AgentNode:
@@ -51,8 +40,8 @@ class AgentNode:
             weights.append(scenario.b[robot_id - 1])
         self.weights = np.array(weights, dtype=float)
         self.sense: Sense | None = None
-        self.estimates: dict[int, Held] = {}
-        self.leader: Held | None = None
+        self.estimates: dict[int, Estimate] = {}  # latest held per neighbour (zero-order hold)
+        self.leader: LeaderState | None = None
         self.acted_tick = -1
         self.seq_estimate = 0
         self.seq_command = 0
@@ -82,10 +71,10 @@ class AgentNode:
             if msg.robot in self.neighbour_ids and msg.robot != self.id:
                 held = self.estimates.get(msg.robot)
                 if held is None or msg.tick >= held.tick:
-                    self.estimates[msg.robot] = Held(msg.tick, msg.t, msg.ph)
+                    self.estimates[msg.robot] = msg
         elif isinstance(msg, LeaderState):
             if self.pinned and (self.leader is None or msg.tick >= self.leader.tick):
-                self.leader = Held(msg.tick, msg.t, msg.p0)
+                self.leader = msg
         if self.lockstep and self.ready():
             out.append(self.act(self.sc.dt))
         return out
@@ -99,8 +88,16 @@ class AgentNode:
         return missing
 
     def ready(self) -> bool:
+        """Lock-step: whether this robot holds everything it expects for its current tick."""
         s = self.sense
-        return s is not None and s.tick > self.acted_tick and not self.waiting_for(s.tick)
+        if s is None or s.tick <= self.acted_tick:
+            return False
+        k = s.tick
+        for j in self.neighbour_ids:
+            held = self.estimates.get(j)
+            if held is None or held.tick < k:
+                return False
+        return not self.pinned or (self.leader is not None and self.leader.tick >= k)
 
     # --- messages out -------------------------------------------------------------------
 
@@ -113,15 +110,15 @@ class AgentNode:
         """Compute the command from what is held, step the estimate by ``dt``, return the command."""
         s = self.sense
         assert s is not None, "act() before any sensing"
-        rows = [self.estimates[j].value for j in self.neighbour_ids if j in self.estimates]
+        rows = [self.estimates[j].ph for j in self.neighbour_ids if j in self.estimates]
         weights = [w for j, w in zip(self.neighbour_ids, self.weights) if j in self.estimates]
         if self.pinned and self.leader is not None:
-            rows.append(self.leader.value)
+            rows.append(self.leader.p0)
             weights.append(self.weights[-1])
         neighbours = np.array(rows).reshape(-1, 3)
+        p_i0, dp_i0 = self.offset.state(s.t)
         out = robot_control(
-            s.p, self.ph, neighbours, np.array(weights, dtype=float),
-            self.offset.position(s.t), self.offset.velocity(s.t),
+            s.p, self.ph, neighbours, np.array(weights, dtype=float), p_i0, dp_i0,
             s.po, s.vo, self.sc.d, self.sc.formation, self.sc.avoidance, self.sc.estimator, self.sc.v_max,
         )
         self.speed_limited += out.speed_limited

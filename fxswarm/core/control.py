@@ -61,6 +61,15 @@ class EstimatorGains:
     r6: float
     power: str = "pairwise"  # "pairwise" (eq. (11) as printed) or "aggregate" (its proof)
 
+    @property
+    def exponents(self) -> np.ndarray:
+        """``[r3/r4, r5/r6]`` shaped (2, 1, 1) to raise a (m, 3) array to both powers at once."""
+        cached = self.__dict__.get("_exponents")
+        if cached is None:
+            cached = np.array([[[self.r3 / self.r4]], [[self.r5 / self.r6]]])
+            object.__setattr__(self, "_exponents", cached)
+        return cached
+
 
 def task_rate(x: float, g: BehaviourGains) -> float:
     """``lam*(b1*x^r1 + b2*x^r2)^r0`` for ``x >= 0``: the decay rate of a task function.
@@ -94,13 +103,12 @@ def estimator_rate(
         return np.zeros(3)
     diff = ph_i - neighbours  # (m, 3)
     eta3 = weights @ diff
+    exponents = gains.exponents
     if gains.power == "aggregate":
-        eta1 = sig(eta3, gains.r3 / gains.r4)
-        eta2 = sig(eta3, gains.r5 / gains.r6)
+        eta12 = np.sign(eta3) * np.abs(eta3) ** exponents[:, 0]  # (2, 3)
     else:
-        eta1 = weights @ sig(diff, gains.r3 / gains.r4)
-        eta2 = weights @ sig(diff, gains.r5 / gains.r6)
-    return -gains.K1 * eta1 - gains.K2 * eta2 - gains.K3 * np.sign(eta3)  # eq. (11)
+        eta12 = weights @ (np.sign(diff) * np.abs(diff) ** exponents)  # (2, 3): both powers at once
+    return -gains.K1 * eta12[0] - gains.K2 * eta12[1] - gains.K3 * np.sign(eta3)  # eq. (11)
 
 
 def formation_error(p_i: np.ndarray, ph_i: np.ndarray, p_i0: np.ndarray) -> np.ndarray:

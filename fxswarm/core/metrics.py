@@ -35,16 +35,30 @@ def settle_time(t: np.ndarray, err: np.ndarray, tol: float) -> float | None:
     return float(t[last + 1])
 
 
-def avoidance_episodes(t: np.ndarray, active: np.ndarray) -> list[dict]:
-    """Maximal runs of ``active[:, i]`` as ``{robot, start_s, end_s}`` (robot ids 1-based)."""
+#: Gaps shorter than this (s) between two runs of the avoidance task join them into one
+#: episode: in discrete time a robot held on the zone boundary flickers in and out tick by tick.
+EPISODE_MERGE_GAP_S = 0.1
+
+
+def avoidance_episodes(t: np.ndarray, active: np.ndarray, merge_gap: float = EPISODE_MERGE_GAP_S) -> list[dict]:
+    """Runs of ``active[:, i]`` as ``{robot, start_s, end_s}`` (robot ids 1-based).
+
+    Runs separated by less than ``merge_gap`` seconds count as one episode.
+    """
     episodes = []
     for i in range(active.shape[1]):
         a = np.concatenate([[False], active[:, i], [False]]).astype(np.int8)
         starts = np.flatnonzero(np.diff(a) == 1)
-        ends = np.flatnonzero(np.diff(a) == -1)
+        ends = np.flatnonzero(np.diff(a) == -1)  # index of the first inactive tick
+        runs: list[list[float]] = []
         for s, e in zip(starts, ends):
+            start_t = float(t[s])
             end_t = float(t[e]) if e < len(t) else float(t[-1])
-            episodes.append({"robot": i + 1, "start_s": float(t[s]), "end_s": end_t})
+            if runs and start_t - runs[-1][1] < merge_gap:
+                runs[-1][1] = end_t
+            else:
+                runs.append([start_t, end_t])
+        episodes += [{"robot": i + 1, "start_s": round(s0, 9), "end_s": round(s1, 9)} for s0, s1 in runs]
     return sorted(episodes, key=lambda ep: (ep["start_s"], ep["robot"]))
 
 

@@ -156,12 +156,23 @@ class Offset:
         )
 
     def position(self, t: float) -> np.ndarray:
-        base, amp, omega, phase = self._arrays
-        return base + amp * np.sin(omega * t + phase)
+        return self.state(t)[0]
 
     def velocity(self, t: float) -> np.ndarray:
-        _, amp, omega, phase = self._arrays
-        return amp * omega * np.cos(omega * t + phase)
+        return self.state(t)[1]
+
+    def positions(self, t: np.ndarray) -> np.ndarray:
+        """Positions at many times ``t`` (k,), shape (k, 3)."""
+        base, amp, omega, phase = self._arrays
+        return base + amp * np.sin(np.multiply.outer(t, omega) + phase)
+
+    def state(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Position and velocity at ``t`` in one pass (the agent needs both every tick)."""
+        base, amp, omega, phase = self._arrays
+        if not amp.any():
+            return base.copy(), np.zeros(3)
+        angle = omega * t + phase
+        return base + amp * np.sin(angle), amp * omega * np.cos(angle)
 
 
 Path = Static | ConstantVelocity | Helix | Circle | Waypoints

@@ -160,7 +160,7 @@ class WorldNode:
             has = bool(np.isfinite(dist[i]))
             out.append((topics.sense_topic(r.id), Sense(
                 "world", 0, self.seq, k, t, r.id, self.p[i].copy(),
-                po[i].copy() if has else None, vo[i].copy() if has else None)))
+                po[i] if has else None, vo[i] if has else None)))  # po, vo: fresh arrays
         return out
 
     def _state_message(self) -> topics.Outgoing:
@@ -196,5 +196,5 @@ class WorldNode:
             "obstacle_distance": self.rec_near_obstacle[:ticks],
             "avoid_active": self.rec_avoid[:ticks],
             "obstacles": self.rec_obstacles[:ticks],
-            "offsets": np.array([[r.offset.position(x) for r in self.sc.robots] for x in t]).reshape(-1, self.sc.n, 3),
+            "offsets": np.stack([r.offset.positions(t) for r in self.sc.robots], axis=1).reshape(-1, self.sc.n, 3),
         }
