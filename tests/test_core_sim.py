@@ -1,0 +1,133 @@
+"""The in-process simulator on the paper's scenario: the outcomes the core issue asks for."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from fxswarm.core.metrics import avoidance_episodes, settle_time
+from fxswarm.core.scenario import load
+from fxswarm.runtime.output import load_trajectory
+from fxswarm.runtime.sim import Simulation
+
+SUMMARY_FIELDS = {
+    "robots", "ticks", "dt", "duration_s", "wall_s", "min_object_distance_m", "min_obstacle_distance_m",
+    "formation_error_final_m", "estimate_error_final_m", "formation_settle_s", "estimate_settle_s",
+    "avoidance_episodes", "fixed_time_bounds_s",
+}
+
+
+@pytest.fixture(scope="module")
+def paper_fast_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("paper-fast")
+    result = subprocess.run([sys.executable, "-m", "fxswarm.cli", "sim", "configs/paper-fast.toml", "--out", str(out)],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    return json.loads((out / "summary.json").read_text()), load_trajectory(out), result
+
+
+def test_paper_fast_meets_the_core_outcomes(paper_fast_run):
+    s, _, _ = paper_fast_run
+    assert SUMMARY_FIELDS <= s.keys()
+    assert s["robots"] == 6 and s["ticks"] == 4000 and s["dt"] == 0.01
+    assert s["min_object_distance_m"] >= 1.8
+    assert s["formation_error_final_m"] <= 0.15
+    assert s["estimate_error_final_m"] <= 0.15
+    assert s["estimate_settle_s"] is not None and s["estimate_settle_s"] <= 5
+    assert len(s["avoidance_episodes"]) >= 1
+    assert set(s["fixed_time_bounds_s"]) == {"formation", "avoidance", "estimator"}
+
+
+def test_trajectory_file_has_the_documented_shapes(paper_fast_run):
+    s, traj, _ = paper_fast_run
+    k, n = s["ticks"], s["robots"]
+    shapes = {"t": (k,), "p": (k, n, 3), "ph": (k, n, 3), "p0": (k, 3), "v": (k, n, 3),
+              "nearest_distance": (k, n), "avoid_active": (k, n)}
+    for name, shape in shapes.items():
+        assert traj[name].shape == shape, name
+        assert np.all(np.isfinite(traj[name])), name
+    assert traj["avoid_active"].dtype == bool
+    assert np.allclose(traj["p"][0], [r.position for r in load("configs/paper-fast.toml").robots])
+    assert np.allclose(traj["p"][1:], traj["p"][:-1] + 0.01 * traj["v"][:-1])  # explicit Euler, SPEC section 7
+    assert np.allclose(traj["p0"][-1], [2 * np.cos(0.05 * 39.99), 2 * np.sin(0.05 * 39.99), 39.99])
+
+
+def test_summary_agrees_with_the_trajectory(paper_fast_run):
+    s, traj, _ = paper_fast_run
+    assert s["min_object_distance_m"] == pytest.approx(traj["nearest_distance"].min())
+    ep = s["avoidance_episodes"][0]
+    i, t = ep["robot"] - 1, traj["t"]
+    inside = (t >= ep["start_s"]) & (t < ep["end_s"])
+    assert traj["avoid_active"][inside, i].mean() > 0.5
+    assert np.all(traj["nearest_distance"][traj["avoid_active"]] < 2.0)  # active only inside the zone
+
+
+def test_progress_line_is_shown_and_quiet_hides_it(paper_fast_run, tmp_path):
+    _, _, result = paper_fast_run
+    assert "ticks/s" in result.stderr and "max formation error" in result.stderr
+    sc = tmp_path / "short.toml"
+    sc.write_text(open("configs/paper-fast.toml").read().replace("duration = 40.0", "duration = 1.0"))
+    quiet = subprocess.run([sys.executable, "-m", "fxswarm.cli", "sim", str(sc), "--out", str(tmp_path / "o"),
+                            "--quiet"], capture_output=True, text=True, timeout=120)
+    assert quiet.returncode == 0 and quiet.stderr == "" and quiet.stdout == ""
+
+
+def test_simulation_is_deterministic():
+    sc = load("configs/paper-fast.toml")
+    import dataclasses
+    sc = dataclasses.replace(sc, duration=2.0)
+    a, b = Simulation(sc), Simulation(sc)
+    a.run(), b.run()
+    ta, tb = a.trajectory(), b.trajectory()
+    assert all(np.array_equal(ta[k], tb[k]) for k in ta)
+
+
+def test_agents_only_hear_their_neighbours_the_leader_if_pinned_and_their_own_sensing():
+    sc = load("configs/paper-fast.toml")
+    sim = Simulation(sc)
+    heard: dict[int, set[str]] = {a.id: set() for a in sim.agents}
+    for agent in sim.agents:
+        original = agent.handle
+
+        def spy(topic, msg, agent=agent, original=original):
+            heard[agent.id].add(topic)
+            return original(topic, msg)
+
+        agent.handle = spy
+    sim.bus._exact.clear()
+    from fxswarm.runtime.sim import attach
+    for node in (sim.world, sim.leader, *sim.agents):
+        attach(sim.bus, node)
+    import dataclasses
+    sim.scenario = dataclasses.replace(sc, duration=0.5)
+    sim.world.sc = sim.scenario
+    sim.run()
+    assert heard[1] == {"world/sense/1", "agent/2/estimate", "agent/6/estimate", "leader/state"}
+    assert heard[3] == {"world/sense/3", "agent/2/estimate", "agent/4/estimate"}
+
+
+def test_settle_time_and_episode_helpers():
+    t = np.arange(10) * 0.5
+    err = np.array([3, 2, 1, 0.1, 0.3, 0.1, 0.1, 0.05, 0.0, 0.0])
+    assert settle_time(t, err, 0.2) == 2.5
+    assert settle_time(t, np.full(10, 1.0), 0.2) is None
+    active = np.zeros((10, 2), dtype=bool)
+    active[2:4, 1] = True
+    active[5:7, 1] = True  # a gap of one sample (0.5 s): a separate episode at merge_gap 0.1 s
+    assert avoidance_episodes(t, active) == [{"robot": 2, "start_s": 1.0, "end_s": 2.0},
+                                              {"robot": 2, "start_s": 2.5, "end_s": 3.5}]
+    assert avoidance_episodes(t, active, merge_gap=1.0) == [{"robot": 2, "start_s": 1.0, "end_s": 3.5}]
+
+
+@pytest.mark.slow
+def test_paper_scenario_300_s_passes_every_obstacle(tmp_path):
+    sc = load("configs/paper.toml")
+    sim = Simulation(sc)
+    s = sim.run()
+    traj = sim.trajectory()
+    assert s["min_object_distance_m"] >= 1.8
+    assert s["formation_error_final_m"] <= 0.15 and s["estimate_error_final_m"] <= 0.15
+    top = max(o.position(0.0)[2] for o in sc.obstacles)
+    assert traj["p"][-1, :, 2].min() > top + 1.5  # every robot ended well above the highest obstacle
