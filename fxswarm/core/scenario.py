@@ -57,6 +57,9 @@ class Scenario:
     avoidance: BehaviourGains
     estimator: EstimatorGains
     raw: dict = field(repr=False, default_factory=dict)  # the parsed TOML, for sections owned elsewhere
+    variant: str = "fixed-time"  # [controller] variant: the behaviours' law family (VARIANTS)
+    estimator_variant: str = "fixed-time"  # [controller] estimator_variant: the estimator's law family
+    discretisation: str = "euler"  # [controller] discretisation: "euler" (SPEC section 7) or "semi-implicit"
 
     @property
     def n(self) -> int:
@@ -253,11 +256,51 @@ def _behaviour(f: _Fields, lam_key: str, lam_default: float) -> BehaviourGains:
     )
 
 
-def _check_fixed_time(f: _Fields, g: BehaviourGains) -> None:
-    if g.r1 * g.r0 <= 1.0:
-        f.fail("r1", f"r1*r0 > 1 for a fixed-time law (r1*r0 = {g.r1 * g.r0:g})", show_got=False)
-    if g.r2 * g.r0 >= 1.0:
-        f.fail("r2", f"r2*r0 < 1 for a fixed-time law (r2*r0 = {g.r2 * g.r0:g})", show_got=False)
+#: Controller variants ([controller] variant / estimator_variant): the same law, its exponents chosen
+#: so that convergence is fixed-time (the paper), finite-time, or asymptotic (exponential).
+VARIANTS = ("fixed-time", "asymptotic", "finite-time")
+DISCRETISATIONS = ("euler", "semi-implicit")
+
+
+def _exponent_condition(x: float, relation: str) -> bool:
+    if relation == "> 1":
+        return x > 1.0
+    if relation == "< 1":
+        return x < 1.0
+    return math.isclose(x, 1.0, rel_tol=1e-9)  # "= 1"
+
+
+#: What each variant needs of the behaviours' effective exponents ``r1*r0`` (large errors) and
+#: ``r2*r0`` (small errors), and of the estimator's ``r3/r4`` and ``r5/r6`` (SPEC sections 2, 6).
+BEHAVIOUR_CONDITIONS = {
+    "fixed-time": {"r1": "> 1", "r2": "< 1"},
+    "finite-time": {"r1": "< 1", "r2": "< 1"},
+    "asymptotic": {"r1": "= 1", "r2": "= 1"},
+}
+ESTIMATOR_CONDITIONS = {
+    "fixed-time": {"r3": "> 1", "r5": "< 1"},
+    "finite-time": {"r3": "< 1", "r5": "< 1"},
+    "asymptotic": {"r3": "= 1", "r5": "= 1"},
+}
+
+
+def _check_behaviour_variant(f: _Fields, g: BehaviourGains, variant: str) -> None:
+    """The exponent conditions of ``variant`` (BEHAVIOUR_CONDITIONS) on the behaviours' gains."""
+    for key, relation in BEHAVIOUR_CONDITIONS[variant].items():
+        value = (g.r1 if key == "r1" else g.r2) * g.r0
+        if not _exponent_condition(value, relation):
+            f.fail(key, f"{key}*r0 {relation} for the {variant} law (controller.variant; "
+                   f"{key}*r0 = {value:g})", show_got=False)
+
+
+def _check_estimator_variant(f: _Fields, g: EstimatorGains, variant: str) -> None:
+    """The exponent conditions of ``variant`` (ESTIMATOR_CONDITIONS) on the estimator's gains."""
+    for key, relation in ESTIMATOR_CONDITIONS[variant].items():
+        num, den = (g.r3, g.r4) if key == "r3" else (g.r5, g.r6)
+        if not _exponent_condition(num / den, relation):
+            pair = "r3/r4" if key == "r3" else "r5/r6"
+            f.fail(key, f"{pair} {relation} for the {variant} estimator (controller.estimator_variant; "
+                   f"{pair} = {num / den:g})", show_got=False)
 
 
 def parse(data: dict, source: str = "<scenario>") -> Scenario:
@@ -277,7 +320,12 @@ def parse(data: dict, source: str = "<scenario>") -> Scenario:
     gf.check_known({"b1", "b2", "r0", "r1", "r2", "lam_f", "lam_o", "K1", "K2", "K3", "r3", "r4", "r5", "r6"})
     formation = _behaviour(gf, "lam_f", 1.0)
     avoidance = _behaviour(gf, "lam_o", 1.0)
-    _check_fixed_time(gf, formation)
+    cf = top.table_at("controller")
+    cf.check_known({"variant", "estimator_variant", "discretisation"})
+    variant = cf.string("variant", "fixed-time", VARIANTS)
+    estimator_variant = cf.string("estimator_variant", variant, VARIANTS)
+    discretisation = cf.string("discretisation", "euler", DISCRETISATIONS)
+    _check_behaviour_variant(gf, formation, variant)
     ef = top.table_at("estimator")
     ef.check_known({"power"})
     estimator = EstimatorGains(
@@ -286,10 +334,7 @@ def parse(data: dict, source: str = "<scenario>") -> Scenario:
         r5=gf.number("r5", positive=True), r6=gf.number("r6", positive=True),
         power=ef.string("power", "pairwise", ("pairwise", "aggregate")),
     )
-    if estimator.r3 / estimator.r4 <= 1.0:
-        gf.fail("r3", f"r3/r4 > 1 (r3/r4 = {estimator.r3 / estimator.r4:g})", show_got=False)
-    if estimator.r5 / estimator.r6 >= 1.0:
-        gf.fail("r5", f"r5/r6 < 1 (r5/r6 = {estimator.r5 / estimator.r6:g})", show_got=False)
+    _check_estimator_variant(gf, estimator, estimator_variant)
 
     # Offsets: a sinusoid shared by all robots, overridable per robot.
     ff = top.table_at("formation")
@@ -366,6 +411,7 @@ def parse(data: dict, source: str = "<scenario>") -> Scenario:
         d=sc.number("d", positive=True), v_max=sc.optional_number("v_max", positive=True),
         robots=tuple(robots), a=a, b=b, leader=leader, obstacles=obstacles,
         formation=formation, avoidance=avoidance, estimator=estimator, raw=data,
+        variant=variant, estimator_variant=estimator_variant, discretisation=discretisation,
     )
     leader_speed = leader.max_speed_inf(duration)
     if estimator.K3 < leader_speed:
