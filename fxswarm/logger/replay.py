@@ -1,0 +1,64 @@
+"""A recording from a finished run folder (``trajectory.npz`` + the scenario), through the same recorder.
+
+``fxswarm sim`` writes no recording while it runs (it is the fast path);
+this turns its output into one. The frames are the world states the run
+went through, rebuilt from the trajectory: the same values the live logger
+would have logged, at the same rate.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from fxswarm.core.messages import WorldState
+from fxswarm.core.scenario import Scenario, load
+from fxswarm.logger.recorder import RecorderOptions, SwarmRecorder
+from fxswarm.logger.sinks import Outputs, open_recording
+from fxswarm.runtime.output import load_trajectory
+
+
+def scenario_of_run(run_dir: str | Path) -> Scenario:
+    """The scenario named by ``summary.json``'s ``source`` (tried as given, then beside the run's parents)."""
+    run = Path(run_dir)
+    summary_path = run / "summary.json"
+    try:
+        source = json.loads(summary_path.read_text())["source"]
+    except (OSError, ValueError, KeyError) as exc:
+        raise FileNotFoundError(f"{summary_path}: expected a run summary with a 'source' field ({exc})") from None
+    candidates = [Path(source)] + [parent / source for parent in run.resolve().parents]
+    for path in candidates:
+        if path.is_file():
+            return load(path)
+    raise FileNotFoundError(f"{summary_path}: scenario {source!r} not found (looked in the working directory "
+                            "and the run folder's parents)")
+
+
+def world_states(traj: dict[str, np.ndarray]):
+    """The ``WorldState`` of every recorded tick, as the world node publishes it."""
+    near = np.where(np.isfinite(traj["nearest_distance"]), traj["nearest_distance"], -1.0)
+    for k, t in enumerate(traj["t"]):
+        yield WorldState("world", 0, k + 1, k, float(t), traj["p"][k], traj["v"][k], traj["ph"][k], near[k],
+                         traj["avoid_active"][k], traj["obstacles"][k])
+
+
+def record_run(run_dir: str | Path, out: str | Path | None = None, scenario: Scenario | None = None,
+               options: RecorderOptions | None = None) -> Path:
+    """Write ``out`` (default ``<run_dir>/recording.rrd``) from the run's trajectory; return its path."""
+    run = Path(run_dir)
+    sc = scenario or scenario_of_run(run)
+    traj = load_trajectory(run)
+    path = Path(out) if out is not None else run / "recording.rrd"
+    rec, _ = open_recording(Outputs(file=path), recording_id=f"{sc.name}-{run.name}")
+    opts = options or RecorderOptions.from_scenario(sc, flush_frames=500, flush_wall_s=1e9, link_health=False)
+    recorder = SwarmRecorder(sc, rec, opts)
+    recorder.start()
+    for state in world_states(traj):
+        if recorder.due(state.t):
+            recorder.frame(state)
+        else:
+            recorder.skipped += 1
+    recorder.close()
+    return path

@@ -1,0 +1,47 @@
+"""The logger's ring buffer: the bus never waits, a slow logger drops the oldest and counts."""
+
+from __future__ import annotations
+
+import threading
+
+import pytest
+
+from fxswarm.logger.inbox import Inbox
+
+
+def test_overflow_drops_oldest_and_counts():
+    box = Inbox(3)
+    for k in range(5):
+        box.put(k)
+    assert box.dropped == 2 and box.accepted == 5
+    assert list(box.drain()) == [2, 3, 4]
+    assert len(box) == 0
+
+
+def test_drain_limit_keeps_the_rest():
+    box = Inbox(10)
+    for k in range(6):
+        box.put(k)
+    assert list(box.drain(limit=4)) == [0, 1, 2, 3]
+    assert list(box.drain()) == [4, 5]
+
+
+def test_producer_thread_never_blocks_on_a_consumer_that_never_drains():
+    box = Inbox(100)
+    done = threading.Event()
+
+    def produce():
+        for k in range(10_000):
+            box.put(k)
+        done.set()
+
+    thread = threading.Thread(target=produce)
+    thread.start()
+    assert done.wait(5.0), "put() blocked"
+    thread.join()
+    assert box.dropped == 10_000 - 100 and list(box.drain())[0] == 9_900
+
+
+def test_capacity_must_be_positive():
+    with pytest.raises(ValueError, match="capacity"):
+        Inbox(0)

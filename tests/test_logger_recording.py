@@ -1,0 +1,206 @@
+"""The logger's recording, read back with Rerun's own reader, against trajectory.npz."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rerun.chunk import RrdReader
+
+from fxswarm.core.messages import Estimate, LeaderState
+from fxswarm.core.metrics import estimate_errors, formation_errors
+from fxswarm.core.scenario import load
+from fxswarm.logger import style
+from fxswarm.logger.recorder import LinkHealth, RecorderOptions, SwarmRecorder, attach
+from fxswarm.logger.replay import record_run, world_states
+from fxswarm.logger.sinks import OutputError, Outputs, open_recording, parse_outputs
+from fxswarm.runtime.output import write_run
+from fxswarm.runtime.sim import Simulation
+
+ROOT = Path(__file__).resolve().parents[1]
+DURATION = 3.0  # s: long enough for avoidance-free formation motion, short enough to be quick
+
+
+@pytest.fixture(scope="module")
+def scenario():
+    return dataclasses.replace(load(ROOT / "configs/paper-fast.toml"), duration=DURATION)
+
+
+def read_series(path: Path) -> dict[str, dict[str, np.ndarray]]:
+    """Per entity: ``t`` (s) and each component's values (rows stacked), temporal rows only."""
+    out: dict[str, dict[str, list]] = {}
+    for chunk in RrdReader(path).stream():
+        batch = chunk.to_record_batch()
+        if "sim_time" not in batch.schema.names:
+            continue
+        entity = out.setdefault(chunk.entity_path.lstrip("/"), {})
+        times = batch.column("sim_time").cast("int64").to_numpy() / 1e9
+        entity.setdefault("t", []).extend(times)
+        for name in batch.schema.names:
+            if ":" in name:
+                entity.setdefault(name, []).extend(batch.column(name).to_pylist())
+    result = {}
+    for entity, cols in out.items():
+        order = np.argsort(cols["t"], kind="stable")
+        result[entity] = {k: [v[i] for i in order] if k != "t" else np.asarray(v)[order] for k, v in cols.items()}
+    return result
+
+
+def entities(path: Path) -> set[str]:
+    return {chunk.entity_path.lstrip("/") for chunk in RrdReader(path).stream()}
+
+
+@pytest.fixture(scope="module")
+def live_run(scenario, tmp_path_factory):
+    """A lock-step simulation with the recorder on its bus; returns (rrd path, trajectory, recorder)."""
+    folder = tmp_path_factory.mktemp("live")
+    rrd = folder / "recording.rrd"
+    sim = Simulation(scenario)
+    rec, _ = open_recording(Outputs(file=rrd), recording_id="test-live")
+    recorder = SwarmRecorder(scenario, rec, RecorderOptions(rate_hz=20.0, velocities=True))
+    recorder.start()
+    attach(sim.bus, recorder)
+    summary = sim.run()
+    recorder.close()
+    write_run(folder, summary, sim.trajectory())
+    return rrd, sim.trajectory(), recorder
+
+
+EXPECTED = {style.ROBOTS, style.TRAILS, style.LEADER, style.ESTIMATES, style.SLOTS, style.OBSTACLES, style.EDGES,
+            style.VELOCITIES, style.FORMATION_ERROR, style.NEAREST_DISTANCE, style.ESTIMATE_ERROR,
+            style.AVOID_ACTIVE, style.LINK_DROPS, style.LINK_STALE, style.REAL_TIME_FACTOR, style.TICK_RATE}
+
+
+def test_live_recording_has_every_entity(live_run):
+    rrd, _, _ = live_run
+    assert EXPECTED <= entities(rrd)
+
+
+def test_rate_limit_logs_one_frame_per_period(live_run, scenario):
+    rrd, traj, recorder = live_run
+    series = read_series(rrd)[style.FORMATION_ERROR]
+    expected_t = np.arange(0, DURATION - 1e-9, 1 / 20.0)
+    np.testing.assert_allclose(series["t"], expected_t, atol=1e-9)
+    assert recorder.frames == len(expected_t)
+    assert recorder.skipped == len(traj["t"]) - len(expected_t)
+
+
+def _rows_at(traj_t: np.ndarray, times: np.ndarray) -> np.ndarray:
+    idx = np.searchsorted(traj_t, times - 1e-9)
+    np.testing.assert_allclose(traj_t[idx], times, atol=1e-9)
+    return idx
+
+
+@pytest.mark.parametrize("sample", [0, 7, -1])
+def test_logged_values_match_trajectory(live_run, sample):
+    rrd, traj, _ = live_run
+    series = read_series(rrd)
+    t = series[style.FORMATION_ERROR]["t"]
+    k = _rows_at(traj["t"], t)[sample]
+    np.testing.assert_allclose(series[style.FORMATION_ERROR]["Scalars:scalars"][sample], formation_errors(traj)[k],
+                               rtol=1e-6)
+    np.testing.assert_allclose(series[style.ESTIMATE_ERROR]["Scalars:scalars"][sample], estimate_errors(traj)[k],
+                               rtol=1e-6)
+    near = series[style.NEAREST_DISTANCE]["Scalars:scalars"][sample]
+    np.testing.assert_allclose(near[:-1], traj["nearest_distance"][k], rtol=1e-6)
+    assert near[-1] == pytest.approx(2.0)  # the d line rides along as the last series
+    positions = np.array(series[style.ROBOTS]["Points3D:positions"][sample])
+    np.testing.assert_allclose(positions, traj["p"][k], atol=1e-4)  # stored as float32
+    estimates = np.array(series[style.ESTIMATES]["Points3D:positions"][sample])
+    np.testing.assert_allclose(estimates, traj["ph"][k], atol=1e-4)
+    leader = np.array(series[style.LEADER]["Points3D:positions"][sample])
+    np.testing.assert_allclose(leader[0], traj["p0"][k], atol=1e-4)
+    assert series[style.AVOID_ACTIVE]["Scalars:scalars"][sample] == list(traj["avoid_active"][k].astype(float))
+
+
+def test_links_are_healthy_in_a_fault_free_run(live_run):
+    rrd, _, recorder = live_run
+    series = read_series(rrd)
+    assert np.all(np.array(series[style.LINK_STALE]["Scalars:scalars"]) == 0)
+    assert np.all(np.array(series[style.LINK_DROPS]["Scalars:scalars"]) == 0)
+    colours = np.array(series[style.EDGES]["LineStrips3D:colors"])
+    assert np.all(colours == style.LINK_OK)
+    assert recorder.counters()["link_drops_seen"] == 0
+    rtf = np.array(series[style.REAL_TIME_FACTOR]["Scalars:scalars"]).ravel()
+    assert len(rtf) > 0 and np.all(rtf > 0)
+
+
+def test_replay_of_a_run_folder_matches_the_live_recording(live_run, scenario, tmp_path):
+    rrd, traj, _ = live_run
+    out = record_run(rrd.parent, tmp_path / "replay.rrd", scenario=scenario,
+                     options=RecorderOptions(rate_hz=20.0, link_health=False))
+    live, replay = read_series(rrd), read_series(out)
+    for entity in (style.FORMATION_ERROR, style.ESTIMATE_ERROR, style.NEAREST_DISTANCE):
+        np.testing.assert_array_equal(live[entity]["t"], replay[entity]["t"])
+        np.testing.assert_allclose(live[entity]["Scalars:scalars"], replay[entity]["Scalars:scalars"])
+    assert style.LINK_STALE not in replay  # a trajectory says nothing about links
+
+
+def test_replay_finds_the_scenario_from_the_summary(tmp_path, scenario):
+    sim = Simulation(dataclasses.replace(scenario, duration=0.5))
+    write_run(tmp_path, sim.run(), sim.trajectory())  # summary's source: configs/paper-fast.toml
+    import os
+    cwd = os.getcwd()
+    os.chdir(ROOT)
+    try:
+        path = record_run(tmp_path)
+    finally:
+        os.chdir(cwd)
+    assert path == tmp_path / "recording.rrd"
+    assert style.FORMATION_ERROR in entities(path)
+
+
+def test_link_health_counts_sequence_gaps_and_staleness(scenario):
+    links = LinkHealth(scenario)
+    assert links.names[:2] == ["1-2", "1-6"] and links.names[-2:] == ["L-1", "L-4"]
+    for tick in range(5):
+        for robot in range(1, 7):
+            if robot == 3 and tick in (2, 3):  # robot 3 silent for two ticks: its seq skips two
+                continue
+            links.heard(robot, tick + 1 if robot != 3 else tick + 1, tick, tick * 0.01)
+        links.heard(0, tick + 1, tick, tick * 0.01)
+    bad, drops, stale = links.at(4, 0.04, stale_ticks=2, recent_drop_s=1.0)
+    by_name = dict(zip(links.names, zip(bad, drops, stale)))
+    assert by_name["2-3"][1] == 2 and by_name["3-4"][1] == 2 and by_name["1-2"][1] == 0
+    assert by_name["2-3"][0] and not by_name["1-2"][0]
+    # Everyone goes silent: after stale_ticks, every link is stale.
+    bad, _, stale = links.at(8, 0.08, stale_ticks=2, recent_drop_s=0.0)
+    assert bad.all() and (stale >= 1).all()
+
+
+def test_recorder_takes_estimates_and_leader_without_logging(scenario, tmp_path):
+    rec, _ = open_recording(Outputs(file=tmp_path / "r.rrd"), recording_id="t")
+    recorder = SwarmRecorder(scenario, rec)
+    assert not recorder.take("agent/1/estimate", Estimate("agent", 1, 1, 0, 0.0, 1, np.zeros(3)))
+    assert not recorder.take("leader/state", LeaderState("leader", 0, 1, 0, 0.0, np.zeros(3)))
+    assert recorder.links.last_tick[1] == 0 and recorder.links.last_tick[0] == 0
+    state = next(world_states(_one_tick_trajectory(scenario)))
+    assert recorder.take("world/state", state) and recorder.frames == 1
+    assert not recorder.take("world/state", state)  # same time again: inside the rate period
+    recorder.close()
+
+
+def _one_tick_trajectory(sc):
+    sim = Simulation(dataclasses.replace(sc, duration=sc.dt * 2))
+    sim.run()
+    return sim.trajectory()
+
+
+def test_parse_outputs(tmp_path):
+    o = parse_outputs("file,grpc,web=9000", tmp_path)
+    assert o.file == tmp_path / "recording.rrd" and o.grpc.startswith("rerun+http://") and o.web_port == 9000
+    assert parse_outputs("file=x.rrd", tmp_path).file == Path("x.rrd")
+    with pytest.raises(OutputError, match="'viewer'"):
+        parse_outputs("file,viewer", tmp_path)
+    with pytest.raises(OutputError, match="names no output"):
+        parse_outputs(",", tmp_path)
+
+
+def test_options_from_scenario_logging_table(scenario):
+    sc = dataclasses.replace(scenario, raw={**scenario.raw, "logging": {"rate_hz": 5.0, "velocities": True}})
+    opts = RecorderOptions.from_scenario(sc, rate_hz=None, trail_s=3.0)
+    assert opts.rate_hz == 5.0 and opts.velocities and opts.trail_s == 3.0
+    with pytest.raises(ValueError, match="rate_hz"):
+        RecorderOptions.from_scenario(sc, rate_hz=0.0)
