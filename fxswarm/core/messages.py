@@ -108,7 +108,8 @@ _STATE_SHAPES = {"p": "mat", "v": "mat", "ph": "mat", "nearest": "row", "avoid":
 
 def encode(msg: Message) -> bytes:
     """The msgpack wire form of ``msg``."""
-    out = {"v": SCHEMA_VERSION, "k": _KIND_OF[type(msg)]}
+    # Envelope keys must not collide with field names (Command and WorldState have a field "v").
+    out = {"schema": SCHEMA_VERSION, "kind": _KIND_OF[type(msg)]}
     for f in fields(msg):
         value = getattr(msg, f.name)
         if isinstance(value, np.ndarray):
@@ -163,11 +164,11 @@ def decode(payload: bytes) -> Message:
         raise WireError(f"not msgpack: {type(exc).__name__}") from None
     if not isinstance(raw, dict):
         raise WireError("not a map")
-    if raw.get("v") != SCHEMA_VERSION:
-        raise WireError(f"unknown schema version {raw.get('v')!r}")
-    cls = KINDS.get(raw.get("k"))  # type: ignore[arg-type]
+    if raw.get("schema") != SCHEMA_VERSION:
+        raise WireError(f"unknown schema version {raw.get('schema')!r}")
+    cls = KINDS.get(raw.get("kind"))  # type: ignore[arg-type]
     if cls is None:
-        raise WireError(f"unknown message kind {raw.get('k')!r}")
+        raise WireError(f"unknown message kind {raw.get('kind')!r}")
     role = raw.get("role")
     if role not in ROLES:
         raise WireError(f"unknown role {role!r}")
