@@ -106,19 +106,32 @@ class AgentNode:
         msg = Estimate("agent", self.id, self.seq_estimate, tick, t, self.id, self.ph.copy())
         return topics.estimate_topic(self.id), msg
 
+    def held_estimates(self) -> tuple[np.ndarray, np.ndarray]:
+        """The estimates this robot holds, shape (m, 3), neighbours in ascending id then the
+        leader (``ph_0 := p0``), with their weights ``a_ij`` / ``b_i``, shape (m,)."""
+        ids = self.neighbour_ids
+        held = self.estimates
+        if len(held) == len(ids) and (not self.pinned or self.leader is not None):
+            rows = [held[j].ph for j in ids]  # the usual case: everyone heard, weights as built
+            weights = self.weights
+        else:
+            rows = [held[j].ph for j in ids if j in held]
+            weights = [w for j, w in zip(ids, self.weights) if j in held]
+            if self.pinned and self.leader is not None:
+                weights.append(self.weights[-1])
+            weights = np.array(weights, dtype=float)
+        if self.pinned and self.leader is not None:
+            rows.append(self.leader.p0)
+        return np.array(rows).reshape(-1, 3), weights
+
     def act(self, dt: float) -> topics.Outgoing:
         """Compute the command from what is held, step the estimate by ``dt``, return the command."""
         s = self.sense
         assert s is not None, "act() before any sensing"
-        rows = [self.estimates[j].ph for j in self.neighbour_ids if j in self.estimates]
-        weights = [w for j, w in zip(self.neighbour_ids, self.weights) if j in self.estimates]
-        if self.pinned and self.leader is not None:
-            rows.append(self.leader.p0)
-            weights.append(self.weights[-1])
-        neighbours = np.array(rows).reshape(-1, 3)
+        neighbours, weights = self.held_estimates()
         p_i0, dp_i0 = self.offset.state(s.t)
         out = robot_control(
-            s.p, self.ph, neighbours, np.array(weights, dtype=float), p_i0, dp_i0,
+            s.p, self.ph, neighbours, weights, p_i0, dp_i0,
             s.po, s.vo, self.sc.d, self.sc.formation, self.sc.avoidance, self.sc.estimator, self.sc.v_max,
         )
         self.speed_limited += out.speed_limited

@@ -168,11 +168,15 @@ class Offset:
 
     def state(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Position and velocity at ``t`` in one pass (the agent needs both every tick)."""
-        base, amp, omega, phase = self._arrays
-        if not amp.any():
-            return base.copy(), np.zeros(3)
-        angle = omega * t + phase
-        return base + amp * np.sin(angle), amp * omega * np.cos(angle)
+        # Per-axis scalar maths: on 3-vectors it is several times cheaper than numpy calls.
+        pos, vel = list(self.base), [0.0, 0.0, 0.0]
+        for k in range(3):
+            a = self.amplitude[k]
+            if a:
+                angle = self.omega[k] * t + self.phase[k]
+                pos[k] += a * math.sin(angle)
+                vel[k] = a * self.omega[k] * math.cos(angle)
+        return np.array(pos), np.array(vel)
 
 
 Path = Static | ConstantVelocity | Helix | Circle | Waypoints
