@@ -1,0 +1,242 @@
+"""What every role process shares: options, signals, the session's life, delivery, counters.
+
+A role process (``fxswarm world|leader|agent``) is a node (sans I/O) on a
+:class:`~fxswarm.runtime.zenoh_bus.ZenohBus`, driven by one of the loops in
+the role's module. Everything a process receives reaches its node through
+ONE function, :meth:`RoleProcess.deliver`; the node itself is built in one
+function per role (``build_node``), and :func:`wrap_node` is the single place
+where an inbox filter (e.g. the fault filter of ``fxswarm.core.faults``) can
+be slotted around it. A wrapper must keep ``subscriptions()``/``handle()``
+and expose the wrapped node as ``.inner`` (the loops read the node's state
+through :func:`unwrap`).
+
+Lifecycle: the session is opened in the process itself (never inherited
+across a fork), subscriptions are declared before the liveliness token (so
+whoever sees the token may already send to us), and the session is always
+closed, also on SIGTERM/SIGINT, since an open session hangs the exit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+
+from fxswarm.core import bus as topics
+from fxswarm.core.messages import Message
+from fxswarm.core.scenario import Scenario
+from fxswarm.runtime.zenoh_bus import ZenohBus, add_zenoh_arguments, options_from_args
+
+#: Set by the launcher: a child whose parent is gone (even SIGKILLed) stops by itself.
+PARENT_ENV = "FXSWARM_PARENT_PID"
+CLOCKS = ("lockstep", "realtime")
+
+
+def add_process_arguments(p: argparse.ArgumentParser) -> None:
+    """Options common to world, leader and agent processes."""
+    p.add_argument("config", help="scenario file (TOML)")
+    p.add_argument("--clock", choices=CLOCKS, default="lockstep",
+                   help="lockstep: the tick protocol, bit-identical to `fxswarm sim`; "
+                        "realtime: each process loops at its own rate on the latest data")
+    p.add_argument("--speed", type=float, default=1.0,
+                   help="real time only: simulation seconds per wall second (default 1)")
+    p.add_argument("--stale-after", type=float, default=None, metavar="S",
+                   help="real time: a message older than S simulation seconds is counted stale "
+                        "(default: 5 control periods)")
+    p.add_argument("--out", default=None,
+                   help="run folder; this process writes its counters to OUT/processes/<role>-<id>.json")
+    add_zenoh_arguments(p)
+
+
+def wrap_node(node, role: str, ident: int, scenario: Scenario, args: argparse.Namespace):
+    """The one place where an inbox filter wraps a node (none yet: the node itself)."""
+    return node
+
+
+def unwrap(node):
+    """The node under any wrappers (they expose it as ``.inner``)."""
+    while hasattr(node, "inner"):
+        node = node.inner
+    return node
+
+
+class SimClock:
+    """Simulation time in a real-time process: ``(wall - start) * speed``.
+
+    The world starts the clock; the others learn its start from the world's
+    time-stamped messages: each one bounds the start from below by
+    ``received - t / speed`` (it cannot have been sent before it was made), and
+    the latest bound (the message that travelled fastest) is kept. No shared
+    wall clock is needed between machines.
+    """
+
+    def __init__(self, speed: float) -> None:
+        if not speed > 0:
+            raise ValueError(f"--speed: expected a positive number, got {speed}")
+        self.speed = speed
+        self.start: float | None = None
+
+    def start_now(self) -> None:
+        self.start = time.monotonic()
+
+    def observe(self, t: float, received: float) -> None:
+        bound = received - t / self.speed
+        if self.start is None or bound > self.start:
+            self.start = bound
+
+    @property
+    def known(self) -> bool:
+        return self.start is not None
+
+    def now(self) -> float:
+        assert self.start is not None, "simulation time before the world started"
+        return (time.monotonic() - self.start) * self.speed
+
+    def wall_of(self, t: float) -> float:
+        """The monotonic wall time at which simulation time ``t`` falls."""
+        assert self.start is not None
+        return self.start + t / self.speed
+
+
+class RoleProcess:
+    """One role's process: its bus, its node, its signals, its counters file."""
+
+    def __init__(self, role: str, ident: int, scenario: Scenario, args: argparse.Namespace) -> None:
+        self.role, self.ident, self.sc, self.args = role, ident, scenario, args
+        self.name = f"{role}/{ident}"
+        self.stopping = False
+        self.stop_reason = ""
+        self.lockstep = args.clock == "lockstep"
+        self.clock = SimClock(args.speed)
+        self.stale_after = args.stale_after if args.stale_after is not None else 5 * scenario.dt
+        self.alive: set[str] = set()  # tokens seen up (role/id)
+        self.gone: set[str] = set()  # tokens seen up, then down
+        self.node = None
+        self.core = None
+        parent = os.environ.get(PARENT_ENV)
+        self.parent_pid = int(parent) if parent else None
+        # A busy main thread delays Zenoh's callback threads by the switch interval (5 ms
+        # by default, notes/zenoh.md): our callbacks only enqueue, so switch sooner.
+        sys.setswitchinterval(0.0005)
+        swarm, options = options_from_args(args, scenario.raw.get("zenoh"))
+        self.bus = ZenohBus(swarm, options)
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(sig, self._on_signal)
+
+    # --- signals and liveness ------------------------------------------------------------
+
+    def _on_signal(self, signum, frame) -> None:
+        self.stop(signal.Signals(signum).name)
+
+    def stop(self, reason: str) -> None:
+        if not self.stopping:
+            self.stopping, self.stop_reason = True, reason
+        self.bus.wake()
+
+    def check_parent(self) -> None:
+        if self.parent_pid is not None and os.getppid() != self.parent_pid:
+            self.stop("launcher gone")
+
+    def watch(self, names: list[str]) -> None:
+        """Track the liveliness of these ``role/id`` names in :attr:`alive` / :attr:`gone`."""
+        for name in names:
+            self.bus.watch_alive(name, self._on_alive)
+
+    def _on_alive(self, name: str, up: bool) -> None:
+        if up:
+            self.alive.add(name)
+            self.gone.discard(name)
+        elif name in self.alive:
+            self.alive.discard(name)
+            self.gone.add(name)
+
+    def exit_with_world(self) -> None:
+        """Stop once the world, having been seen, is gone (the run is over or lost)."""
+        if "world/0" in self.gone:
+            self.stop("world gone")
+
+    # --- the node ---------------------------------------------------------------------------
+
+    def attach(self, node) -> None:
+        """Subscribe to the node's topics (all through :meth:`deliver`), then say we are alive."""
+        self.node = node
+        self.core = unwrap(node)
+        for pattern in node.subscriptions():
+            self.bus.subscribe(pattern, self.deliver)
+        self.bus.declare_alive(self.role, self.ident)
+
+    def deliver(self, topic: str, msg: Message) -> None:
+        """The one way in: count staleness, hand ``msg`` to the node, publish what it returns."""
+        if not self.lockstep:
+            now = time.monotonic()
+            if msg.role == "world":
+                self.clock.observe(msg.t, now)
+            if self.clock.known and self.clock.now() - msg.t > self.stale_after:
+                self.bus.counters.stale += 1
+        elif self.is_late(msg):
+            self.bus.counters.stale += 1
+        out = self.node.handle(topic, msg)
+        if out:
+            self.bus.publish_all(out)
+
+    def is_late(self, msg: Message) -> bool:
+        """Lock-step: a message for a tick the receiver has already left (role-specific)."""
+        return False
+
+    def publish(self, out) -> None:
+        if out:
+            self.bus.publish_all([out] if isinstance(out[0], str) else out)
+
+    # --- exit --------------------------------------------------------------------------------
+
+    def counters(self) -> dict:
+        c = self.bus.counters.as_dict()
+        c["stop_reason"] = self.stop_reason or "done"
+        return c
+
+    def write_counters(self, extra: dict | None = None) -> None:
+        if not self.args.out:
+            return
+        folder = Path(self.args.out) / "processes"
+        folder.mkdir(parents=True, exist_ok=True)
+        data = {"role": self.role, "id": self.ident, "pid": os.getpid(), **self.counters(), **(extra or {})}
+        tmp = folder / f".{self.role}-{self.ident}.json.tmp"
+        tmp.write_text(json.dumps(data, indent=2) + "\n")
+        tmp.replace(folder / f"{self.role}-{self.ident}.json")
+
+    def close(self) -> None:
+        self.bus.close()
+
+
+def run_event_loop(proc: RoleProcess, on_idle=None, step: float = 0.1) -> None:
+    """Deliver messages until stopped; ``on_idle()`` runs after every batch (and every ``step`` s)."""
+    while not proc.stopping:
+        proc.bus.poll(step)
+        if on_idle is not None:
+            on_idle()
+        proc.check_parent()
+        proc.exit_with_world()
+
+
+def run_periodic_loop(proc: RoleProcess, period_wall: float, act, act_early=None) -> None:
+    """Real time: call ``act()`` every ``period_wall`` s, delivering messages in between.
+
+    Zero-order hold: ``act`` works on whatever the node holds. ``act_early()``
+    (checked after each batch of messages) lets fresh data trigger the act at
+    once (e.g. an agent's new sensing); the period then restarts from there.
+    A late loop does not burst to catch up: it acts once and goes on.
+    """
+    due = time.monotonic()
+    while not proc.stopping:
+        left = due - time.monotonic()
+        proc.bus.poll(min(left, 0.1) if left > 0 else 0)
+        now = time.monotonic()
+        if now >= due or (act_early is not None and act_early()):
+            act()
+            due = due + period_wall if 0 <= now - due < period_wall else now + period_wall
+        proc.check_parent()
+        proc.exit_with_world()

@@ -1,0 +1,273 @@
+"""The Zenoh bus: the :class:`fxswarm.core.bus.Bus` interface over Eclipse Zenoh.
+
+Keys are ``fxswarm/<swarm>/<topic>``. Zenoh delivers samples on its own
+threads; the callbacks here only enqueue raw bytes (a slow callback stalls
+the whole session, notes/zenoh.md), and the process's main loop calls
+:meth:`ZenohBus.poll`, which decodes, validates and hands messages to the
+handlers on the main thread. Liveliness changes travel through the same
+queue, so a process sees data and arrivals/departures in one order.
+
+Invalid payloads (not msgpack, wrong schema, wrong shape, non-finite values,
+or a sender that does not match its key, e.g. ``agent/3/cmd`` signed by
+robot 4) are dropped, counted in ``counters.invalid`` and warned about once
+per key.
+"""
+
+from __future__ import annotations
+
+import argparse
+import queue
+import sys
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import zenoh
+
+from fxswarm.core import bus as topics
+from fxswarm.core.bus import Counters, Handler
+from fxswarm.core.messages import Clock, Command, Estimate, LeaderState, Message, Sense, WireError, WorldState, decode, encode
+
+AliveHandler = Callable[[str, bool], None]  # (``role/id``, up?)
+
+MODES = ("peer", "client", "router")
+
+
+@dataclass(frozen=True)
+class ZenohOptions:
+    """How a process joins the Zenoh network.
+
+    mode: ``peer`` | ``client`` | ``router``; connect/listen: endpoints such as
+    ``tcp/127.0.0.1:7447``; multicast: UDP multicast scouting (off for
+    clients of a router: a peer mesh does not scale, notes/zenoh.md);
+    lease_ms: how long a silent (e.g. frozen) session stays alive to others;
+    connect_timeout_ms: how long ``open`` waits for its router (-1: forever).
+    """
+
+    mode: str = "peer"
+    connect: tuple[str, ...] = ()
+    listen: tuple[str, ...] = ()
+    multicast: bool = True
+    lease_ms: int | None = None
+    connect_timeout_ms: int = 30_000
+
+    def config(self) -> zenoh.Config:
+        if self.mode not in MODES:
+            raise ValueError(f"zenoh mode: expected one of {', '.join(MODES)}, got {self.mode!r}")
+        conf = zenoh.Config()
+        conf.insert_json5("mode", f'"{self.mode}"')
+        if self.connect:
+            conf.insert_json5("connect/endpoints", _json_list(self.connect))
+            conf.insert_json5("connect/timeout_ms", str(self.connect_timeout_ms))
+        if self.listen:
+            conf.insert_json5("listen/endpoints", _json_list(self.listen))
+        conf.insert_json5("scouting/multicast/enabled", "true" if self.multicast else "false")
+        if self.lease_ms is not None:
+            conf.insert_json5("transport/link/tx/lease", str(int(self.lease_ms)))
+        return conf
+
+    def as_args(self) -> list[str]:
+        """The command-line form of these options, for a child process."""
+        out = ["--mode", self.mode]
+        for e in self.connect:
+            out += ["--connect", e]
+        for e in self.listen:
+            out += ["--listen", e]
+        out.append("--multicast" if self.multicast else "--no-multicast")
+        if self.lease_ms is not None:
+            out += ["--lease-ms", str(self.lease_ms)]
+        return out
+
+
+def _json_list(items) -> str:
+    return "[" + ",".join(f'"{x}"' for x in items) + "]"
+
+
+def add_zenoh_arguments(p: argparse.ArgumentParser, default_swarm: str = "default") -> None:
+    """The options every process shares: swarm name and how to join Zenoh."""
+    g = p.add_argument_group("zenoh")
+    g.add_argument("--swarm", default=None,
+                   help=f"key prefix fxswarm/<swarm>/...: two swarms never cross-talk "
+                        f"(default: the scenario's [zenoh] swarm, else {default_swarm!r})")
+    g.add_argument("--mode", choices=MODES, default=None, help="zenoh session mode (default: peer)")
+    g.add_argument("--connect", action="append", default=None, metavar="ENDPOINT",
+                   help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    g.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
+                   help="endpoint to listen on (repeatable)")
+    g.add_argument("--multicast", dest="multicast", action="store_true", default=None,
+                   help="enable UDP multicast scouting (default for peers)")
+    g.add_argument("--no-multicast", dest="multicast", action="store_false",
+                   help="disable UDP multicast scouting")
+    g.add_argument("--lease-ms", type=int, default=None,
+                   help="session lease: how fast a frozen process is seen as gone")
+
+
+def options_from_args(args: argparse.Namespace, table: dict | None = None) -> tuple[str, ZenohOptions]:
+    """(swarm, options) from the command line, falling back to a scenario's ``[zenoh]`` table."""
+    table = table or {}
+    swarm = args.swarm or table.get("swarm") or "default"
+    mode = args.mode or table.get("mode") or "peer"
+    connect = tuple(args.connect or table.get("connect") or ())
+    listen = tuple(args.listen or table.get("listen") or ())
+    multicast = args.multicast if args.multicast is not None else table.get("multicast", mode == "peer")
+    lease = args.lease_ms if args.lease_ms is not None else table.get("lease_ms")
+    return swarm, ZenohOptions(mode, connect, listen, bool(multicast), lease)
+
+
+# --- who may say what ----------------------------------------------------------------------
+
+
+def check_sender(topic: str, msg: Message) -> None:
+    """Raise :class:`WireError` unless ``msg`` is the kind, role and robot its key promises.
+
+    ``world/sense/3`` carries a world Sense for robot 3, ``agent/3/estimate`` an
+    Estimate signed by robot 3, and so on: a stranger cannot speak for a robot.
+    """
+    parts = topic.split("/")
+    if parts[0] == "world" and len(parts) == 3 and parts[1] == "sense":
+        ok = isinstance(msg, Sense) and msg.role == "world" and str(msg.robot) == parts[2]
+    elif parts[0] == "agent" and len(parts) == 3:
+        kind = {"estimate": Estimate, "cmd": Command}.get(parts[2])
+        ok = (kind is not None and isinstance(msg, kind) and msg.role == "agent"
+              and str(msg.robot) == parts[1] and msg.sender == msg.robot)
+    elif topic == topics.LEADER_STATE:
+        ok = isinstance(msg, LeaderState) and msg.role == "leader"
+    elif topic == topics.CLOCK:
+        ok = isinstance(msg, Clock) and msg.role == "world"
+    elif topic == topics.WORLD_STATE:
+        ok = isinstance(msg, WorldState) and msg.role == "world"
+    else:
+        ok = True  # topics of other roles (e.g. a logger's) are theirs to check
+    if not ok:
+        raise WireError(f"a {type(msg).__name__} from {msg.role}:{msg.sender} does not belong on {topic!r}")
+
+
+# --- the bus -------------------------------------------------------------------------------
+
+_WAKE = object()  # queued by wake(): lets a blocked poll() return at once (e.g. on a signal)
+
+
+class ZenohBus:
+    """One Zenoh session of one process, with the :class:`~fxswarm.core.bus.Bus` interface."""
+
+    def __init__(self, swarm: str, options: ZenohOptions, validate: bool = True) -> None:
+        self.swarm = swarm
+        self.options = options
+        self.root = topics.prefix(swarm)
+        self.counters = Counters()
+        self.validate = validate
+        self._inbox: queue.SimpleQueue = queue.SimpleQueue()
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._subscribers: list = []
+        self._tokens: list = []
+        self._warned: set[str] = set()
+        self.session = zenoh.open(options.config())
+
+    # --- Bus protocol ---------------------------------------------------------------------
+
+    def publish(self, topic: str, msg: Message) -> None:
+        self.publish_bytes(topic, encode(msg))
+
+    def publish_all(self, outgoing) -> None:
+        for topic, msg in outgoing:
+            self.publish(topic, msg)
+
+    def publish_bytes(self, topic: str, payload: bytes) -> None:
+        """Put raw bytes on a topic (tests use it to send garbage)."""
+        pub = self._publishers.get(topic)
+        if pub is None:
+            pub = self.session.declare_publisher(
+                f"{self.root}/{topic}", congestion_control=zenoh.CongestionControl.BLOCK,
+                priority=zenoh.Priority.REAL_TIME, express=True)
+            self._publishers[topic] = pub
+        pub.put(payload)
+        self.counters.sent += 1
+
+    def subscribe(self, pattern: str, handler: Handler) -> None:
+        """Hand every valid message on ``pattern`` to ``handler(topic, msg)`` from :meth:`poll`."""
+        cut = len(self.root) + 1
+        put = self._inbox.put
+
+        def on_sample(sample, handler=handler) -> None:  # Zenoh thread: enqueue only
+            put((handler, str(sample.key_expr)[cut:], sample.payload.to_bytes()))
+
+        self._subscribers.append(self.session.declare_subscriber(f"{self.root}/{pattern}", on_sample))
+
+    def declare_alive(self, role: str, ident: int | str) -> None:
+        self._tokens.append(self.session.liveliness().declare_token(f"{self.root}/{topics.alive_topic(role, ident)}"))
+
+    def watch_alive(self, pattern: str, handler: AliveHandler) -> None:
+        """Call ``handler("role/id", up)`` from :meth:`poll` for tokens under ``alive/<pattern>``.
+
+        Tokens already present are reported first (history).
+        """
+        cut = len(self.root) + len("/alive/")
+        put = self._inbox.put
+
+        def on_change(sample, handler=handler) -> None:
+            put((handler, str(sample.key_expr)[cut:], sample.kind == zenoh.SampleKind.PUT))
+
+        self._subscribers.append(self.session.liveliness().declare_subscriber(
+            f"{self.root}/alive/{pattern}", on_change, history=True))
+
+    def wake(self) -> None:
+        """Make a blocked :meth:`poll` return now (safe from a signal handler)."""
+        self._inbox.put(_WAKE)
+
+    def poll(self, timeout: float | None) -> int:
+        """Wait up to ``timeout`` s for traffic, then deliver all that is queued; return how many."""
+        try:
+            item = self._inbox.get(timeout=timeout) if timeout is None or timeout > 0 else self._inbox.get_nowait()
+        except queue.Empty:
+            return 0
+        n = 0
+        get = self._inbox.get_nowait
+        while True:
+            if item is not _WAKE:
+                n += self._dispatch(item)
+            try:
+                item = get()
+            except queue.Empty:
+                return n
+
+    def _dispatch(self, item) -> int:
+        handler, topic, payload = item
+        if isinstance(payload, bool):  # a liveliness change
+            handler(topic, payload)
+            return 0
+        try:
+            msg = decode(payload)
+            if self.validate:
+                check_sender(topic, msg)
+        except WireError as exc:
+            self.counters.invalid += 1
+            if topic not in self._warned:
+                self._warned.add(topic)
+                print(f"fxswarm: warning: dropped an invalid message on {self.root}/{topic}: {exc} "
+                      f"(further ones on this key are only counted)", file=sys.stderr)
+            return 0
+        self.counters.received += 1
+        handler(topic, msg)
+        return 1
+
+    def close(self) -> None:
+        """Close the session (undeclares everything; never leave a session open at exit)."""
+        if not self.session.is_closed():
+            self.session.close()
+
+    def __enter__(self) -> "ZenohBus":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def wait_until(bus: ZenohBus, done: Callable[[], bool], timeout: float, step: float = 0.05) -> bool:
+    """Poll ``bus`` until ``done()`` or ``timeout`` seconds pass; return ``done()``."""
+    end = time.monotonic() + timeout
+    while not done():
+        left = end - time.monotonic()
+        if left <= 0:
+            return done()
+        bus.poll(min(step, left))
+    return True

@@ -1,0 +1,211 @@
+"""``fxswarm world CONFIG``: the world as its own process on Zenoh.
+
+It waits (liveliness, no sleeps) until the leader and every agent are up,
+then runs the clock:
+
+* lock-step: :class:`~fxswarm.world.node.WorldNode`'s tick protocol; a tick
+  whose commands do not all arrive within ``--tick-timeout`` s (or whose
+  missing robots' processes are gone) is closed by ``timeout()``: the silent
+  robots hold their last command and the miss is counted, so the run never
+  deadlocks;
+* real time: ticks paced at ``dt / speed`` wall seconds, integrating on the
+  latest command of each robot (zero-order hold); it measures the latency
+  from each sensing message to the matching command's arrival.
+
+At the end it writes ``trajectory.npz`` and ``summary.json`` (the same as
+``fxswarm sim``) into ``--out``, and its counters into ``--out/processes/``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+
+from fxswarm.core.messages import Command, Message
+from fxswarm.core.metrics import summarise
+from fxswarm.core.scenario import Scenario
+from fxswarm.runtime.output import write_run
+from fxswarm.runtime.process import RoleProcess, add_process_arguments, run_periodic_loop, wrap_node
+from fxswarm.runtime.sim_cli import load_or_exit
+from fxswarm.world.node import WorldNode
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    add_process_arguments(p)
+    p.add_argument("--tick-timeout", type=float, default=1.0, metavar="S",
+                   help="lock-step: close a tick after S wall seconds without every command (default 1)")
+    p.add_argument("--wait-timeout", type=float, default=120.0, metavar="S",
+                   help="give up (exit 3) if the leader and all agents are not up within S s (default 120)")
+
+
+class RealTimeInbox:
+    """Real time: commands are held (zero-order hold) and their latency measured, not ticked.
+
+    ``sent_at[k]`` is the wall time the world sent sensing for tick ``k``;
+    the first command of each robot for tick ``k`` gives one latency sample.
+    """
+
+    def __init__(self, world: WorldNode) -> None:
+        self.inner = world
+        self.sent_at: dict[int, float] = {}
+        self.answered: set[tuple[int, int]] = set()
+        self.latencies: list[float] = []  # s
+
+    def subscriptions(self) -> list[str]:
+        return self.inner.subscriptions()
+
+    def handle(self, topic: str, msg: Message) -> list:
+        if isinstance(msg, Command):
+            self.inner.take_command(msg)
+            sent = self.sent_at.get(msg.tick)
+            if sent is not None and (msg.robot, msg.tick) not in self.answered:
+                self.answered.add((msg.robot, msg.tick))
+                self.latencies.append(time.monotonic() - sent)
+        return []
+
+    def sent(self, tick: int) -> None:
+        self.sent_at[tick] = time.monotonic()
+        old = tick - 1000  # keep the maps bounded: a command later than 1000 ticks is no answer
+        self.sent_at.pop(old, None)
+        if len(self.answered) > 20_000:
+            self.answered = {(r, k) for r, k in self.answered if k > old}
+
+
+def build_node(scenario: Scenario, args: argparse.Namespace):
+    """The world's node as this process runs it (one place, so wrappers apply here)."""
+    node = WorldNode(scenario)
+    if args.clock == "realtime":
+        node = RealTimeInbox(node)
+    return wrap_node(node, "world", 0, scenario, args)
+
+
+class WorldProcess(RoleProcess):
+    def is_late(self, msg: Message) -> bool:
+        return isinstance(msg, Command) and msg.tick < self.core.tick
+
+
+def wait_for_everyone(proc: RoleProcess, timeout: float) -> list[str]:
+    """Wait until the leader and every agent are alive; return those still missing."""
+    needed = ["leader/0"] + [f"agent/{r.id}" for r in proc.sc.robots]
+    end = time.monotonic() + timeout
+    while not proc.stopping and time.monotonic() < end:
+        missing = [n for n in needed if n not in proc.alive]
+        if not missing:
+            return []
+        proc.bus.poll(0.1)
+        proc.check_parent()
+    return [n for n in needed if n not in proc.alive]
+
+
+def run_lockstep(proc: RoleProcess, tick_timeout: float) -> None:
+    world: WorldNode = proc.core
+    proc.publish(world.start())
+    deadline = time.monotonic() + tick_timeout
+    tick = world.tick
+    while not world.done and not proc.stopping:
+        proc.bus.poll(max(0.0, min(0.1, deadline - time.monotonic())))
+        now = time.monotonic()
+        if world.done:
+            break
+        if world.tick != tick:
+            tick, deadline = world.tick, now + tick_timeout
+            continue
+        waiting = world.waiting_for()
+        # A robot whose process is gone will not answer: close the tick now, not at the deadline.
+        if now >= deadline or (waiting and all(f"agent/{r}" in proc.gone for r in waiting)):
+            proc.publish(world.timeout())
+            tick, deadline = world.tick, time.monotonic() + tick_timeout
+        proc.check_parent()
+
+
+def run_realtime(proc: RoleProcess, inbox: RealTimeInbox) -> dict:
+    world: WorldNode = proc.core
+    sc = proc.sc
+    period = sc.dt / proc.clock.speed
+    proc.clock.start_now()
+    proc.publish(world.start())
+    inbox.sent(world.tick)
+    overruns = 0
+
+    def tick() -> None:
+        nonlocal overruns
+        # Tick k+1 is due at sim time (k+1)*dt: integrate the held commands over dt.
+        if time.monotonic() > proc.clock.wall_of((world.tick + 1) * sc.dt) + period:
+            overruns += 1
+        proc.publish(world.advance(sc.dt))
+        inbox.sent(world.tick)
+        if world.done:
+            proc.stop("done")
+
+    # run_periodic_loop acts at once when it starts: enter it when tick 1 is due.
+    due_first = proc.clock.wall_of(sc.dt)
+    while time.monotonic() < due_first and not proc.stopping:
+        proc.bus.poll(max(0.0, due_first - time.monotonic()))
+    run_periodic_loop(proc, period, tick)
+    return {"overruns": overruns}
+
+
+def latency_stats(samples: list[float]) -> dict:
+    """p50/p99/max of latencies given in s, reported in ms."""
+    if not samples:
+        return {"n": 0}
+    a = np.asarray(samples) * 1e3
+    return {"n": int(a.size), "p50_ms": float(np.percentile(a, 50)), "p99_ms": float(np.percentile(a, 99)),
+            "max_ms": float(a.max()), "mean_ms": float(a.mean())}
+
+
+def main(args: argparse.Namespace) -> int:
+    sc = load_or_exit(args.config)
+    args.out = args.out or f"runs/{sc.name}-run"
+    proc = WorldProcess("world", 0, sc, args)
+    extra: dict = {}
+    code = 0
+    try:
+        node = build_node(sc, args)
+        proc.watch(["leader/0", "agent/*"])
+        proc.attach(node)
+        start = time.perf_counter()
+        missing = wait_for_everyone(proc, args.wait_timeout)
+        if missing and not proc.stopping:
+            print(f"fxswarm world: gave up after {args.wait_timeout:g} s waiting for {', '.join(missing)}",
+                  file=sys.stderr)
+            return 3
+        if proc.stopping:
+            return 0
+        started = time.perf_counter()
+        extra["waited_s"] = started - start
+        if proc.lockstep:
+            run_lockstep(proc, args.tick_timeout)
+        else:
+            inbox = unwrap_inbox(node)
+            extra.update(run_realtime(proc, inbox))
+            extra["sense_to_command"] = latency_stats(inbox.latencies)
+        world: WorldNode = proc.core
+        wall = time.perf_counter() - started
+        extra.update(missed_ticks_world=world.missed_ticks, ticks=world.tick, wall_s=wall,
+                     ticks_per_s=world.tick / wall if wall > 0 else None)
+        proc.bus.counters.missed_ticks = world.missed_ticks
+        if world.tick > 0:
+            summary = summarise(sc, world.trajectory(), wall)
+            summary.update(clock=args.clock, speed=args.speed if not proc.lockstep else None,
+                           complete=world.done, missed_ticks=world.missed_ticks,
+                           missed_ticks_per_robot={str(r.id): int(m) for r, m in zip(sc.robots, world.misses)})
+            for key in ("sense_to_command", "overruns"):
+                if key in extra:
+                    summary[key] = extra[key]
+            write_run(args.out, summary, world.trajectory())
+        if not world.done:
+            code = 1 if proc.stop_reason not in ("SIGTERM", "SIGINT") else 0
+    finally:
+        proc.write_counters(extra)
+        proc.close()
+    return code
+
+
+def unwrap_inbox(node) -> RealTimeInbox:
+    while not isinstance(node, RealTimeInbox):
+        node = node.inner
+    return node
