@@ -161,6 +161,7 @@ class SwarmRecorder:
         """Log what never changes: names, colours, sizes, series styles, static obstacles."""
         sc, rec, n = self.sc, self.rec, self._n
         colours = style.robot_colours(n)
+        rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         labels = [str(r.id) for r in sc.robots]
         robot_names = [f"robot {r.id}" for r in sc.robots]
         rec.log(style.ROBOTS, rr.Points3D.from_fields(colors=colours, labels=labels, radii=0.3, show_labels=True),

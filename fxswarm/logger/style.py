@@ -60,18 +60,27 @@ def blueprint():
     """The first screen: the 3D swarm beside stacked time series, on ``sim_time``."""
     import rerun.blueprint as rrb
 
+    legend = rrb.PlotLegend(corner=rrb.Corner2D.RightTop)
+
+    def plot(origin: str, name: str):
+        return rrb.TimeSeriesView(origin=origin, name=name, plot_legend=legend)
+
     series = rrb.Vertical(
-        rrb.TimeSeriesView(origin=FORMATION_ERROR, name="formation error |e_i| (m)"),
-        rrb.TimeSeriesView(origin=NEAREST_DISTANCE, name="distance to nearest object (m), d"),
-        rrb.TimeSeriesView(origin=ESTIMATE_ERROR, name="estimate error |ph_i - p0| (m)"),
+        plot(FORMATION_ERROR, "formation error |e_i| (m)"),
+        plot(NEAREST_DISTANCE, "distance to nearest object (m), d"),
+        plot(ESTIMATE_ERROR, "estimate error |ph_i - p0| (m)"),
         rrb.Tabs(
-            rrb.TimeSeriesView(origin=AVOID_ACTIVE, name="avoidance active"),
-            rrb.TimeSeriesView(origin="metrics/links", name="links: drops, stale frames"),
-            rrb.TimeSeriesView(origin="metrics/timing", name="real-time factor, ticks/s"),
+            plot(AVOID_ACTIVE, "avoidance active"),
+            plot("metrics/links", "links: drops, stale frames"),
+            plot("metrics/timing", "real-time factor, ticks/s"),
         ),
     )
+    # The camera follows the leader from behind and above, so the swarm stays in view as it climbs.
+    eye = rrb.EyeControls3D(position=(14.0, -14.0, 9.0), look_target=(0.0, 0.0, 0.0), eye_up=(0.0, 0.0, 1.0),
+                            tracking_entity=LEADER)
+    swarm = rrb.Spatial3DView(origin="world", name="swarm", eye_controls=eye)
     return rrb.Blueprint(
-        rrb.Horizontal(rrb.Spatial3DView(origin="world", name="swarm"), series, column_shares=[3, 2]),
+        rrb.Horizontal(swarm, series, column_shares=[3, 2]),
         rrb.TimePanel(timeline=TIMELINE),  # without it the viewer opens on another timeline
         rrb.BlueprintPanel(state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),
