@@ -1,0 +1,477 @@
+"""``fxswarm run CONFIG``: a scenario as one OS process per role, on one machine.
+
+The launcher owns every process it starts (trio's rule: every start has a
+matching stop). It starts ``fxswarm router`` on a free port, then the logger
+(if installed), the leader and every agent as clients of that router; it
+waits on their liveliness tokens (no fixed sleeps), starts the world last
+(so nobody misses tick 0), shows a progress line from ``world/state``, and
+at the end merges every process's counters into ``summary.json``.
+
+Deaths: the world, leader or router dying unplanned ends the run with a
+non-zero exit that names the process and shows its last stderr lines; an
+agent dying is reported and the swarm runs on (``--fail-fast`` ends it);
+Ctrl-C (or SIGTERM) stops everything within 5 s and says what it stopped.
+
+:class:`Swarm` holds the building blocks (start, wait, kill, freeze,
+restart, stop); :mod:`fxswarm.testing` drives the same class from tests.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from fxswarm.core import bus as topics
+from fxswarm.core.messages import WorldState
+from fxswarm.core.scenario import Scenario
+from fxswarm.runtime.output import write_summary
+from fxswarm.runtime.process import CLOCKS, PARENT_ENV
+from fxswarm.runtime.sim_cli import load_or_exit
+from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions
+
+STOP_BUDGET_S = 4.5  # Ctrl-C to nothing left: the issue promises 5 s
+
+
+def free_port() -> int:
+    """A TCP port that was free a moment ago (bind port 0 and let the kernel choose)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def logger_available() -> bool:
+    try:
+        return importlib.util.find_spec("fxswarm.logger.process") is not None
+    except ModuleNotFoundError:
+        return False
+
+
+@dataclass
+class Child:
+    """One process the launcher started: its command, its log file, how it ended."""
+
+    name: str  # e.g. "agent-3"
+    role: str
+    ident: int
+    argv: list[str]
+    log_path: Path
+    popen: subprocess.Popen | None = None
+    stopped_by: str | None = None  # the signal we sent, if we ended it
+    reported: bool = False  # its death has been reported
+    frozen: bool = False
+
+    @property
+    def token(self) -> str:
+        return f"{self.role}/{self.ident}"
+
+    @property
+    def pid(self) -> int | None:
+        return self.popen.pid if self.popen else None
+
+    def running(self) -> bool:
+        return self.popen is not None and self.popen.poll() is None
+
+    def tail(self, lines: int = 12) -> list[str]:
+        """The last lines of its stderr/stdout."""
+        try:
+            text = self.log_path.read_text(errors="replace")
+        except OSError:
+            return []
+        return text.strip("\n\r").splitlines()[-lines:]
+
+
+@dataclass
+class Death:
+    child: Child
+    code: int
+
+    def describe(self) -> str:
+        how = f"killed by {signal.Signals(-self.code).name}" if self.code < 0 else f"exit code {self.code}"
+        tail = self.child.tail()
+        text = f"{self.child.name} (pid {self.child.pid}) died: {how}"
+        if tail:
+            text += "; its last output:\n" + "\n".join("    " + line for line in tail)
+        return text
+
+
+class StartError(RuntimeError):
+    """The swarm did not come up; the message says who is missing or who died."""
+
+
+@dataclass
+class Swarm:
+    """A scenario's processes on one machine: router, logger, leader, agents, world.
+
+    ``start()`` brings them up (waiting on liveliness), ``poll()`` pumps the
+    launcher's own session and reports deaths, ``stop()`` always ends every
+    process (SIGTERM, then SIGKILL) and returns what it did.
+    """
+
+    config: str
+    out: Path
+    clock: str = "lockstep"
+    speed: float = 1.0
+    swarm: str | None = None
+    port: int | None = None
+    logger: bool = True
+    tick_timeout: float = 1.0
+    lease_ms: int | None = None
+    world_args: tuple[str, ...] = ()
+    python: str = sys.executable
+    scenario: Scenario | None = None
+    children: dict[str, Child] = field(default_factory=dict)
+    state: WorldState | None = None  # the latest world/state heard
+    alive: set[str] = field(default_factory=set)
+    bus: ZenohBus | None = None
+
+    def __post_init__(self) -> None:
+        self.out = Path(self.out)
+        if self.scenario is None:
+            self.scenario = load_or_exit(self.config)
+        zen = self.scenario.raw.get("zenoh", {}) if isinstance(self.scenario.raw.get("zenoh"), dict) else {}
+        self.swarm = self.swarm or zen.get("swarm") or f"{self.scenario.name}-{os.getpid()}"
+        self.port = self.port or free_port()
+        self.endpoint = f"tcp/127.0.0.1:{self.port}"
+        self.options = ZenohOptions("client", (self.endpoint,), (), False, self.lease_ms)
+
+    # --- commands --------------------------------------------------------------------------
+
+    def _zenoh_args(self) -> list[str]:
+        return ["--swarm", self.swarm, *self.options.as_args()]
+
+    def _role_argv(self, role: str, extra: list[str]) -> list[str]:
+        argv = [self.python, "-m", "fxswarm.cli", role, self.config, *self._zenoh_args(), "--out", str(self.out)]
+        if role in ("world", "leader", "agent"):
+            argv += ["--clock", self.clock, "--speed", repr(self.speed)]
+        return argv + extra
+
+    def planned(self) -> list[Child]:
+        """Every process of the run, in start order (the world last)."""
+        logs = self.out / "logs"
+        out = [Child("router", "router", 0, [self.python, "-m", "fxswarm.cli", "router", "--listen", self.endpoint,
+                                             "--swarm", self.swarm], logs / "router.log")]
+        if self.logger and logger_available():
+            out.append(Child("logger", "logger", 0, self._role_argv("logger", []), logs / "logger.log"))
+        out.append(Child("leader", "leader", 0, self._role_argv("leader", []), logs / "leader.log"))
+        for r in self.scenario.robots:
+            out.append(Child(f"agent-{r.id}", "agent", r.id, self._role_argv("agent", ["--id", str(r.id)]),
+                             logs / f"agent-{r.id}.log"))
+        world_extra = ["--tick-timeout", repr(self.tick_timeout), *self.world_args]
+        out.append(Child("world", "world", 0, self._role_argv("world", world_extra), logs / "world.log"))
+        return out
+
+    def _spawn(self, child: Child) -> None:
+        child.log_path.parent.mkdir(parents=True, exist_ok=True)
+        env = dict(os.environ, PYTHONUNBUFFERED="1", **{PARENT_ENV: str(os.getpid())})
+        with open(child.log_path, "ab") as log:
+            # A new session: Ctrl-C reaches the launcher only, which stops children in order.
+            child.popen = subprocess.Popen(child.argv, stdin=subprocess.DEVNULL, stdout=log, stderr=log,
+                                           env=env, start_new_session=True)
+        child.stopped_by, child.reported, child.frozen = None, False, False
+
+    # --- start -----------------------------------------------------------------------------
+
+    def start(self, timeout: float = 60.0, logger_timeout: float = 20.0) -> float:
+        """Start everything and wait until all are alive; return the seconds it took.
+
+        Raises :class:`StartError` naming who did not come up (or died) in time.
+        """
+        t0 = time.monotonic()
+        self.out.mkdir(parents=True, exist_ok=True)
+        for stale in (self.out / "processes").glob("*.json"):
+            stale.unlink()  # a previous run's counters must not be merged into this one
+        planned = self.planned()
+        for child in planned:
+            self.children[child.name] = child
+        world = self.children.pop("world")
+        for child in self.children.values():
+            self._spawn(child)
+        self.bus = ZenohBus(self.swarm, self.options, validate=True)
+        self.bus.watch_alive("**", self._on_alive)
+        self.bus.subscribe(topics.WORLD_STATE, self._on_state)
+        required = [c for c in self.children.values() if c.role != "logger"]
+        self._wait_alive(required, t0 + timeout)
+        logger = self.children.get("logger")
+        if logger is not None:
+            try:
+                self._wait_alive([logger], time.monotonic() + logger_timeout)
+            except StartError as exc:
+                print(f"fxswarm run: warning: the logger did not come up, running without it: {exc}",
+                      file=sys.stderr)
+                self.stop_child(logger)
+        self.children["world"] = world
+        self._spawn(world)
+        self._wait_alive([world], t0 + timeout + 5.0)
+        return time.monotonic() - t0
+
+    def _on_alive(self, name: str, up: bool) -> None:
+        (self.alive.add if up else self.alive.discard)(name)
+
+    def _on_state(self, topic: str, msg) -> None:
+        self.state = msg
+
+    def _wait_alive(self, children: list[Child], deadline: float) -> None:
+        while True:
+            missing = [c for c in children if c.token not in self.alive]
+            if not missing:
+                return
+            for c in missing:
+                code = c.popen.poll() if c.popen else None
+                if code is not None:
+                    raise StartError(Death(c, code).describe())
+            if time.monotonic() > deadline:
+                raise StartError("not alive in time: " + ", ".join(c.name for c in missing))
+            self.bus.poll(0.05)
+
+    # --- while running -------------------------------------------------------------------------
+
+    def poll(self, timeout: float = 0.1) -> list[Death]:
+        """Pump the launcher's session for up to ``timeout`` s; return deaths not yet reported."""
+        if self.bus is not None:
+            self.bus.poll(timeout)
+        deaths = []
+        for child in self.children.values():
+            if child.popen is None or child.reported or child.stopped_by:
+                continue
+            code = child.popen.poll()
+            if code is not None:
+                child.reported = True
+                deaths.append(Death(child, code))
+        return deaths
+
+    def wait_alive(self, name: str, timeout: float = 30.0) -> None:
+        self._wait_alive([self.children[name]], time.monotonic() + timeout)
+
+    def wait_gone(self, name: str, timeout: float = 10.0) -> None:
+        child = self.children[name]
+        end = time.monotonic() + timeout
+        while child.token in self.alive:
+            if time.monotonic() > end:
+                raise TimeoutError(f"{name} still alive after {timeout:g} s")
+            self.bus.poll(0.05)
+
+    def sim_time(self) -> float:
+        """Simulation time of the latest world state heard (s); -1 before any."""
+        return self.state.t if self.state is not None else -1.0
+
+    def kill(self, name: str, sig: int = signal.SIGKILL) -> None:
+        child = self.children[name]
+        child.stopped_by = signal.Signals(sig).name
+        child.popen.send_signal(sig)
+        child.popen.wait(timeout=5)
+
+    def freeze(self, name: str) -> None:
+        self.children[name].popen.send_signal(signal.SIGSTOP)
+        self.children[name].frozen = True
+
+    def thaw(self, name: str) -> None:
+        self.children[name].popen.send_signal(signal.SIGCONT)
+        self.children[name].frozen = False
+
+    def restart(self, name: str, timeout: float = 30.0) -> None:
+        """Start a stopped or dead process again with a fresh state; wait until it is alive."""
+        child = self.children[name]
+        if child.running():
+            self.kill(name)
+        self._spawn(child)
+        self.wait_alive(name, timeout)
+
+    # --- stop -------------------------------------------------------------------------------
+
+    def stop_child(self, child: Child, budget: float = 3.0) -> str:
+        if not child.running():
+            return "exited"
+        child.stopped_by = "SIGTERM"
+        child.popen.send_signal(signal.SIGTERM)
+        child.popen.send_signal(signal.SIGCONT)  # a frozen process must wake to handle SIGTERM
+        try:
+            child.popen.wait(timeout=budget)
+            return "SIGTERM"
+        except subprocess.TimeoutExpired:
+            child.stopped_by = "SIGKILL"
+            child.popen.kill()
+            child.popen.wait()
+            return "SIGKILL"
+
+    def stop(self, budget: float = STOP_BUDGET_S, grace: float = 0.0) -> dict[str, str]:
+        """End every process within ``budget`` s; return ``{name: how}``.
+
+        ``grace``: first let processes that are ending by themselves (agents
+        once the world has gone) finish for up to that long.
+        """
+        end = time.monotonic() + grace
+        while grace and any(c.running() for c in self.children.values() if c.role in ("agent", "leader")):
+            if time.monotonic() > end:
+                break
+            self.poll(0.05)
+        how: dict[str, str] = {}
+        router = self.children.get("router")
+        others = [c for c in self.children.values() if c is not router]
+        for c in others:
+            if c.running():
+                c.stopped_by = "SIGTERM"
+                c.popen.send_signal(signal.SIGTERM)
+                c.popen.send_signal(signal.SIGCONT)
+                how[c.name] = "SIGTERM"
+        deadline = time.monotonic() + budget - 1.0
+        for c in others:
+            if c.popen is None:
+                continue
+            try:
+                c.popen.wait(timeout=max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                c.stopped_by = "SIGKILL"
+                c.popen.kill()
+                c.popen.wait()
+                how[c.name] = "SIGKILL"
+        if self.bus is not None:
+            self.bus.close()
+            self.bus = None
+        if router is not None and router.popen is not None:
+            how["router"] = self.stop_child(router, budget=0.8)
+        return how
+
+    # --- results -----------------------------------------------------------------------------
+
+    def process_counters(self) -> dict[str, dict]:
+        out = {}
+        for path in sorted((self.out / "processes").glob("*.json")):
+            try:
+                data = json.loads(path.read_text())
+            except (OSError, ValueError):
+                continue
+            out[path.stem] = data
+        return out
+
+    def merge_summary(self, extra: dict | None = None) -> dict | None:
+        """Add the processes' counters (and ``extra``) to the world's ``summary.json``; return it."""
+        path = self.out / "summary.json"
+        if not path.exists():
+            return None
+        summary = json.loads(path.read_text())
+        summary["processes"] = self.process_counters()
+        summary.update(extra or {})
+        write_summary(self.out, summary)
+        return summary
+
+    def summary(self) -> dict | None:
+        path = self.out / "summary.json"
+        return json.loads(path.read_text()) if path.exists() else None
+
+
+# --- the command -------------------------------------------------------------------------------
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("config", help="scenario file (TOML)")
+    p.add_argument("--out", default=None, help="run folder (default: runs/<scenario name>)")
+    p.add_argument("--clock", choices=CLOCKS, default="lockstep",
+                   help="lockstep (bit-identical to `fxswarm sim`) or realtime")
+    p.add_argument("--speed", type=float, default=1.0, help="real time: simulation seconds per wall second")
+    p.add_argument("--swarm", default=None, help="key prefix (default: <scenario name>-<launcher pid>)")
+    p.add_argument("--port", type=int, default=None, help="router port on 127.0.0.1 (default: a free one)")
+    p.add_argument("--tick-timeout", type=float, default=1.0, metavar="S",
+                   help="lock-step: a tick waits at most S s for its commands (default 1)")
+    p.add_argument("--lease-ms", type=int, default=None, help="zenoh lease (how fast a frozen process is seen gone)")
+    p.add_argument("--no-logger", action="store_true", help="do not start the Rerun logger process")
+    p.add_argument("--fail-fast", action="store_true", help="end the run when any agent dies")
+    p.add_argument("--start-timeout", type=float, default=60.0, help="seconds to wait for every process to be up")
+    p.add_argument("--quiet", action="store_true", help="no progress line")
+
+
+def _progress(swarm: Swarm, t0: float, stream=sys.stderr) -> None:
+    s = swarm.state
+    if s is None:
+        return
+    sc = swarm.scenario
+    p0 = sc.leader.position(s.t)
+    offsets = np.array([r.offset.position(s.t) for r in sc.robots])
+    f_err = float(np.linalg.norm(s.p - p0 - offsets, axis=1).max())
+    rate = s.tick / max(time.monotonic() - t0, 1e-9)
+    up = sum(1 for c in swarm.children.values() if c.running())
+    stream.write(f"\r  t = {s.t:7.2f} / {sc.duration:g} s   {rate:7.0f} ticks/s   "
+                 f"max formation error {f_err:8.3f} m   processes up {up}/{len(swarm.children)} ")
+    stream.flush()
+
+
+def _raise_interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
+def main(args: argparse.Namespace) -> int:
+    sc = load_or_exit(args.config)
+    out = Path(args.out or f"runs/{sc.name}")
+    swarm = Swarm(args.config, out, clock=args.clock, speed=args.speed, swarm=args.swarm, port=args.port,
+                  logger=not args.no_logger, tick_timeout=args.tick_timeout, lease_ms=args.lease_ms, scenario=sc)
+    signal.signal(signal.SIGTERM, _raise_interrupt)  # a SIGTERM to the launcher stops the run like Ctrl-C
+    say = (lambda *a: None) if args.quiet else (lambda text: print(text, file=sys.stderr))
+    code = 0
+    agent_deaths: list[str] = []
+    try:
+        took = swarm.start(timeout=args.start_timeout)
+        say(f"fxswarm run: {len(swarm.children)} processes up in {took:.1f} s "
+            f"(swarm {swarm.swarm!r}, router {swarm.endpoint}, clock {args.clock})")
+        t0, last = time.monotonic(), 0.0
+        world = swarm.children["world"]
+        while True:
+            deaths = swarm.poll(0.1)
+            if any(d.child is world and d.code == 0 for d in deaths):
+                break  # the run is complete: agents and leader now leave on their own
+            for d in deaths:
+                if d.child.role == "agent":
+                    agent_deaths.append(d.child.name)
+                    say(f"\nfxswarm run: {d.describe()}")
+                    if args.fail_fast:
+                        say("fxswarm run: --fail-fast: ending the run")
+                        code = 1
+                elif d.child.role == "logger":
+                    say(f"\nfxswarm run: warning: {d.describe()}; the swarm runs on without it")
+                else:
+                    print(f"\nfxswarm run: {d.describe()}", file=sys.stderr)
+                    code = 1
+            if code or not world.running():
+                break
+            now = time.monotonic()
+            if not args.quiet and now - last > 0.5:
+                _progress(swarm, t0)
+                last = now
+        if not args.quiet:
+            _progress(swarm, t0)
+            sys.stderr.write("\n")
+        if world.popen.returncode not in (None, 0) and code == 0:
+            print(f"fxswarm run: {Death(world, world.popen.returncode).describe()}", file=sys.stderr)
+            code = 1
+    except StartError as exc:
+        print(f"fxswarm run: the swarm did not start: {exc}", file=sys.stderr)
+        code = 1
+    except KeyboardInterrupt:
+        code = 130
+        say("\nfxswarm run: interrupted")
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the clean-up short
+        finished = "world" in swarm.children and swarm.children["world"].popen is not None \
+            and swarm.children["world"].popen.returncode == 0
+        how = swarm.stop(grace=3.0 if finished else 0.0)
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        stopped = {k: v for k, v in how.items() if v != "exited"}
+        if stopped and (code or not args.quiet):
+            say("fxswarm run: stopped " + ", ".join(f"{k} ({v})" for k, v in stopped.items()))
+    summary = swarm.merge_summary({"launcher": {"swarm": swarm.swarm, "router": swarm.endpoint,
+                                                "agent_deaths": agent_deaths, "exit_code": code}})
+    if summary is not None and code == 0 and not args.quiet:
+        keys = ("robots", "ticks", "wall_s", "min_object_distance_m", "formation_error_final_m",
+                "estimate_error_final_m", "formation_settle_s", "missed_ticks")
+        print(json.dumps({k: summary.get(k) for k in keys}, indent=2))
+        print(f"wrote {out}/summary.json and {out}/trajectory.npz")
+    return code

@@ -1,0 +1,214 @@
+"""Test a swarm as real processes: a pytest plugin (fixture ``launch_swarm``) and its handle.
+
+Registered as the pytest plugin ``fxswarm`` (entry point ``pytest11``), so a
+project that installs fxswarm can write::
+
+    def test_robot_3_rejoins(launch_swarm):
+        swarm = launch_swarm("configs/paper-fast.toml", duration=8.0, clock="realtime", speed=2.0)
+        swarm.wait_for_sim_time(2.0)
+        swarm.kill("agent-3")
+        swarm.wait_for_sim_time(3.0)
+        swarm.restart("agent-3")
+        summary = swarm.wait_done()
+        assert summary["complete"] and summary["min_object_distance_m"] > 1.0
+
+Every swarm runs on its own free port under a unique swarm name, and is
+always torn down (no process left behind), pass or fail.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+import time
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+_counter = itertools.count(1)
+
+
+# --- scenario files with overrides ------------------------------------------------------------
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return repr(v) if math.isfinite(v) else ("nan" if v != v else ("inf" if v > 0 else "-inf"))
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, list):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + "}"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def dump_toml(data: dict) -> str:
+    """TOML text for a scenario-shaped dict (tables, arrays of tables, plain values)."""
+    lines = [f"{k} = {_toml_value(v)}" for k, v in data.items()
+             if not isinstance(v, dict) and not (isinstance(v, list) and v and all(isinstance(x, dict) for x in v))]
+    for k, v in data.items():
+        if isinstance(v, dict):
+            lines.append(f"\n[{k}]")
+            lines += [f"{kk} = {_toml_value(vv)}" for kk, vv in v.items()]
+        elif isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
+            for item in v:
+                lines.append(f"\n[[{k}]]")
+                lines += [f"{kk} = {_toml_value(vv)}" for kk, vv in item.items()]
+    return "\n".join(lines) + "\n"
+
+
+def scenario_with(base: str | Path, folder: str | Path, **overrides: Any) -> Path:
+    """Write a copy of scenario ``base`` into ``folder`` with ``[scenario]`` keys overridden.
+
+    A key with a dot names another table: ``**{"faults.seed": 3}``.
+    """
+    data = tomllib.loads(Path(base).read_text())
+    for key, value in overrides.items():
+        table, _, name = key.rpartition(".")
+        data.setdefault(table or "scenario", {})[name] = value
+    out = Path(folder) / f"{Path(base).stem}-{next(_counter)}.toml"
+    out.write_text(dump_toml(data))
+    return out
+
+
+# --- the handle -----------------------------------------------------------------------------------
+
+
+class SwarmUnderTest:
+    """A running swarm as a test sees it; wraps :class:`fxswarm.runtime.launcher.Swarm`.
+
+    Process names: ``world``, ``leader``, ``router``, ``logger``, ``agent-<id>``.
+    """
+
+    def __init__(self, config: str | Path, out: str | Path, *, clock: str = "lockstep", speed: float = 1.0,
+                 logger: bool = False, tick_timeout: float = 1.0, lease_ms: int | None = None) -> None:
+        from fxswarm.runtime.launcher import Swarm
+
+        swarm_name = f"test-{os.getpid()}-{next(_counter)}"
+        self.swarm = Swarm(str(config), Path(out), clock=clock, speed=speed, swarm=swarm_name, logger=logger,
+                           tick_timeout=tick_timeout, lease_ms=lease_ms)
+        self.deaths: list = []  # unplanned deaths seen so far (launcher.Death)
+
+    @property
+    def scenario(self):
+        return self.swarm.scenario
+
+    @property
+    def out(self) -> Path:
+        return self.swarm.out
+
+    def start(self, timeout: float = 60.0) -> "SwarmUnderTest":
+        self.swarm.start(timeout=timeout)
+        return self
+
+    def pump(self, timeout: float = 0.05) -> None:
+        self.deaths += self.swarm.poll(timeout)
+
+    def sim_time(self) -> float:
+        return self.swarm.sim_time()
+
+    def wait_for_sim_time(self, t: float, timeout: float = 60.0) -> float:
+        """Block until the world has reported simulation time ``t`` (s); return the time heard."""
+        end = time.monotonic() + timeout
+        while self.swarm.sim_time() < t - 1e-9:
+            if time.monotonic() > end:
+                raise TimeoutError(f"simulation time {self.swarm.sim_time():.2f} s after {timeout:g} s, "
+                                   f"waiting for {t:g} s; deaths: {[d.describe() for d in self.deaths]}")
+            if not self.swarm.children["world"].running():
+                raise RuntimeError(f"the world ended at t = {self.swarm.sim_time():.2f} s before {t:g} s")
+            self.pump()
+        return self.swarm.sim_time()
+
+    def step(self, ticks: int = 1, timeout: float = 30.0) -> float:
+        """Wait until ``ticks`` more ticks have been reported (the run is not paused)."""
+        return self.wait_for_sim_time(self.sim_time() + ticks * self.scenario.dt, timeout)
+
+    def state(self):
+        """The latest :class:`~fxswarm.core.messages.WorldState` heard (None before the first)."""
+        return self.swarm.state
+
+    def position(self, robot: int):
+        """Robot ``robot``'s latest true position (3,), m."""
+        s = self.swarm.state
+        assert s is not None, "no world state heard yet"
+        return s.p[robot - 1].copy()
+
+    def kill(self, name: str) -> None:
+        self.swarm.kill(name)
+
+    def terminate(self, name: str) -> None:
+        import signal
+
+        self.swarm.kill(name, signal.SIGTERM)
+
+    def freeze(self, name: str) -> None:
+        self.swarm.freeze(name)
+
+    def thaw(self, name: str) -> None:
+        self.swarm.thaw(name)
+
+    def restart(self, name: str, timeout: float = 30.0) -> None:
+        self.swarm.restart(name, timeout)
+
+    def pid(self, name: str) -> int | None:
+        return self.swarm.children[name].pid
+
+    def pids(self) -> dict[str, int]:
+        return {n: c.pid for n, c in self.swarm.children.items() if c.pid is not None}
+
+    def wait_done(self, timeout: float = 120.0) -> dict:
+        """Wait for the world to finish, stop the rest, merge counters; return ``summary.json``."""
+        world = self.swarm.children["world"]
+        end = time.monotonic() + timeout
+        while world.running():
+            if time.monotonic() > end:
+                raise TimeoutError(f"the run did not finish within {timeout:g} s (t = {self.sim_time():.2f} s)")
+            self.pump(0.1)
+        if world.popen.returncode != 0:
+            from fxswarm.runtime.launcher import Death
+
+            raise RuntimeError(Death(world, world.popen.returncode).describe())
+        self.swarm.stop(grace=3.0)
+        summary = self.swarm.merge_summary()
+        assert summary is not None, f"no summary.json in {self.out}"
+        return summary
+
+    def summary(self) -> dict | None:
+        return self.swarm.summary()
+
+    def stop(self) -> dict[str, str]:
+        return self.swarm.stop()
+
+
+@pytest.fixture
+def launch_swarm(tmp_path):
+    """``launch_swarm(config, clock=..., speed=..., logger=False, **scenario_overrides)`` -> a started swarm.
+
+    Overrides are ``[scenario]`` keys (``duration=5.0``) or ``"table.key"``.
+    Every swarm started is torn down at the end of the test.
+    """
+    made: list[SwarmUnderTest] = []
+
+    def launch(config: str | Path = "configs/paper-fast.toml", *, clock: str = "lockstep", speed: float = 1.0,
+               logger: bool = False, tick_timeout: float = 1.0, lease_ms: int | None = None, start: bool = True,
+               **overrides: Any) -> SwarmUnderTest:
+        k = len(made) + 1
+        path = scenario_with(config, tmp_path, **overrides) if overrides else Path(config)
+        s = SwarmUnderTest(path, tmp_path / f"run-{k}", clock=clock, speed=speed, logger=logger,
+                           tick_timeout=tick_timeout, lease_ms=lease_ms)
+        made.append(s)
+        if start:
+            s.start()
+        return s
+
+    yield launch
+    for s in made:
+        s.stop()

@@ -1,0 +1,96 @@
+"""The Zenoh bus in one process: delivery, validation, sender checks, swarm isolation, liveliness."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fxswarm.core.messages import Clock, Command, Estimate, Sense, WireError, encode
+from fxswarm.runtime.launcher import free_port
+from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions, check_sender, wait_until
+
+V = np.array([1.0, 2.0, 3.0])
+
+
+def estimate(robot: int, sender: int | None = None, tick: int = 0) -> Estimate:
+    return Estimate("agent", robot if sender is None else sender, 1, tick, 0.0, robot, V)
+
+
+def test_check_sender_accepts_a_message_on_its_own_key():
+    check_sender("agent/3/estimate", estimate(3))
+    check_sender("world/sense/2", Sense("world", 0, 1, 0, 0.0, 2, V, None, None))
+    check_sender("clock", Clock("world", 0, 1, 0, 0.0))
+
+
+@pytest.mark.parametrize("topic,msg", [
+    ("agent/3/estimate", estimate(4)),  # a stranger's robot id on robot 3's key
+    ("agent/3/estimate", estimate(3, sender=4)),  # signed by someone else
+    ("agent/3/cmd", estimate(3)),  # wrong kind for the key
+    ("world/sense/2", Sense("world", 0, 1, 0, 0.0, 3, V, None, None)),
+    ("clock", Clock("agent", 1, 1, 0, 0.0)),  # only the world keeps the clock
+])
+def test_check_sender_rejects_a_message_that_does_not_belong(topic, msg):
+    with pytest.raises(WireError):
+        check_sender(topic, msg)
+
+
+@pytest.fixture
+def router():
+    port = free_port()
+    bus = ZenohBus("unused", ZenohOptions("router", listen=(f"tcp/127.0.0.1:{port}",), multicast=False))
+    yield f"tcp/127.0.0.1:{port}"
+    bus.close()
+
+
+def client(endpoint: str, swarm: str) -> ZenohBus:
+    return ZenohBus(swarm, ZenohOptions("client", connect=(endpoint,), multicast=False))
+
+
+@pytest.mark.zenoh
+def test_valid_messages_arrive_exactly_and_invalid_ones_are_counted_and_warned_once(router, capsys):
+    a, b = client(router, "iso-a"), client(router, "iso-a")
+    try:
+        got = []
+        a.subscribe("agent/*/cmd", lambda topic, msg: got.append((topic, msg)))
+        b.declare_alive("agent", 3)
+        alive = []
+        a.watch_alive("**", lambda name, up: alive.append((name, up)))
+        assert wait_until(a, lambda: ("agent/3", True) in alive, 10)  # b's subscriptions are in place too
+        cmd = Command("agent", 3, 1, 7, 0.07, 3, np.array([0.1, 1 / 3, -2e-17]), V, True)
+        b.publish("agent/3/cmd", cmd)
+        for bad in (b"\x00garbage", encode(Command("agent", 4, 1, 7, 0.07, 4, V, V, False)),
+                    encode(Clock("world", 0, 1, 0, 0.0))):
+            b.publish_bytes("agent/3/cmd", bad)
+        b.publish("agent/5/cmd", Command("agent", 5, 1, 7, 0.07, 5, V, V, False))
+        assert wait_until(a, lambda: len(got) == 2 and a.counters.invalid == 3, 10), (got, a.counters)
+        topic, msg = got[0]
+        assert topic == "agent/3/cmd" and msg.tick == 7 and msg.avoid_active
+        assert np.array_equal(msg.v, cmd.v)  # float64 bit for bit
+        warnings = capsys.readouterr().err
+        assert warnings.count("agent/3/cmd") == 1  # once per key, the rest only counted
+        assert a.counters.received == 2
+    finally:
+        a.close()
+        b.close()
+
+
+@pytest.mark.zenoh
+def test_two_swarms_on_one_router_never_cross_talk(router):
+    a, b, a2 = client(router, "iso-a"), client(router, "iso-b"), client(router, "iso-a")
+    try:
+        heard_a, heard_b = [], []
+        a.subscribe("**", lambda t, m: heard_a.append(t))
+        b.subscribe("**", lambda t, m: heard_b.append(t))
+        alive_b = []
+        b.watch_alive("**", lambda name, up: alive_b.append(name))
+        a2.declare_alive("agent", 1)
+        alive_a = []
+        a.watch_alive("**", lambda name, up: alive_a.append(name))
+        assert wait_until(a, lambda: alive_a, 10)
+        a2.publish("agent/1/estimate", estimate(1))
+        assert wait_until(a, lambda: heard_a, 10)
+        b.poll(0.3)
+        assert heard_a == ["agent/1/estimate"] and heard_b == [] and alive_b == []
+    finally:
+        for bus in (a, b, a2):
+            bus.close()
