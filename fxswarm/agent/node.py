@@ -8,12 +8,26 @@ sleep: the runners drive it in lock-step or in real time.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from fxswarm.core import bus as topics
 from fxswarm.core.control import robot_control
 from fxswarm.core.messages import Command, Estimate, LeaderState, Message, Sense
 from fxswarm.core.scenario import Scenario
+from fxswarm.faults.plan import degraded_limits
+
+# Degraded modes, reported to the world in Command.flags (bit set) and counted per robot.
+FLAG_STALE_NEIGHBOUR = 1  # a neighbour silent longer than the staleness limit left the sums
+FLAG_NO_LEADER = 2  # pinned, but the leader is silent: the estimator runs on neighbours alone
+FLAG_EXTRAPOLATING = 4  # hears nobody: the estimate moves with the last estimated leader velocity
+FLAG_NO_SENSING = 8  # no sensing for longer than the limit: commands zero velocity
+FLAG_NAMES = {FLAG_STALE_NEIGHBOUR: "stale_neighbour", FLAG_NO_LEADER: "no_leader",
+              FLAG_EXTRAPOLATING: "extrapolating", FLAG_NO_SENSING: "no_sensing"}
+#: Time constant (s) of the running mean of the estimate's rate used as the leader's velocity
+#: when extrapolating: the sign term makes the raw rate chatter by +-K3 per axis.
+LEADER_VELOCITY_TAU_S = 1.0
 
 
 class AgentNode:
@@ -46,6 +60,13 @@ class AgentNode:
         self.seq_estimate = 0
         self.seq_command = 0
         self.speed_limited = 0  # how often the optional speed limit bit
+        # Degraded modes (docs/DESIGN.md "Faults"): limits, what was last really sensed, counts.
+        self.limits = degraded_limits(scenario)
+        self.expects = None  # lock-step: expects(sender, tick) -> bool, set by a fault filter
+        self.sensed_t: float | None = None  # time of the last real (not replayed) sensing, s
+        self.since_sense_s = 0.0  # real time: seconds acted since the last sensing
+        self.v_leader = np.zeros(3)  # running mean of dph: the leader's velocity as estimated
+        self.degraded_ticks = {name: 0 for name in FLAG_NAMES.values()}
 
     # --- wiring -------------------------------------------------------------------------
 
@@ -65,6 +86,8 @@ class AgentNode:
             if self.sense is not None and msg.tick < self.sense.tick:
                 return out  # an old sensing message overtaken by a newer one
             self.sense = msg
+            if not getattr(msg, "replayed", False):
+                self.sensed_t, self.since_sense_s = msg.t, 0.0
             if self.lockstep:
                 out.append(self.estimate_message(msg.tick, msg.t))
         elif isinstance(msg, Estimate):
@@ -85,6 +108,8 @@ class AgentNode:
                    if (h := self.estimates.get(j)) is None or h.tick < tick]
         if self.pinned and (self.leader is None or self.leader.tick < tick):
             missing.append("leader")
+        if self.expects is not None:  # a fault filter knows these will not come this tick
+            missing = [m for m in missing if self.expects(m, tick)]
         return missing
 
     def ready(self) -> bool:
@@ -93,6 +118,8 @@ class AgentNode:
         if s is None or s.tick <= self.acted_tick:
             return False
         k = s.tick
+        if self.expects is not None:
+            return not self.waiting_for(k)
         for j in self.neighbour_ids:
             held = self.estimates.get(j)
             if held is None or held.tick < k:
@@ -106,38 +133,73 @@ class AgentNode:
         msg = Estimate("agent", self.id, self.seq_estimate, tick, t, self.id, self.ph.copy())
         return topics.estimate_topic(self.id), msg
 
-    def held_estimates(self) -> tuple[np.ndarray, np.ndarray]:
+    def held_estimates(self, fresh_by: float = -np.inf) -> tuple[np.ndarray, np.ndarray]:
         """The estimates this robot holds, shape (m, 3), neighbours in ascending id then the
-        leader (``ph_0 := p0``), with their weights ``a_ij`` / ``b_i``, shape (m,)."""
+        leader (``ph_0 := p0``), with their weights ``a_ij`` / ``b_i``, shape (m,).
+        Those sent before ``fresh_by`` (s) are stale and left out."""
         ids = self.neighbour_ids
         held = self.estimates
-        if len(held) == len(ids) and (not self.pinned or self.leader is not None):
+        leader = self.leader
+        if any(h.t < fresh_by for h in held.values()):
+            held = {j: h for j, h in held.items() if h.t >= fresh_by}
+        if leader is not None and leader.t < fresh_by:
+            leader = None
+        if len(held) == len(ids) and (not self.pinned or leader is not None):
             rows = [held[j].ph for j in ids]  # the usual case: everyone heard, weights as built
             weights = self.weights
         else:
             rows = [held[j].ph for j in ids if j in held]
             weights = [w for j, w in zip(ids, self.weights) if j in held]
-            if self.pinned and self.leader is not None:
+            if self.pinned and leader is not None:
                 weights.append(self.weights[-1])
             weights = np.array(weights, dtype=float)
-        if self.pinned and self.leader is not None:
-            rows.append(self.leader.p0)
+        if self.pinned and leader is not None:
+            rows.append(leader.p0)
         return np.array(rows).reshape(-1, 3), weights
 
     def act(self, dt: float) -> topics.Outgoing:
         """Compute the command from what is held, step the estimate by ``dt``, return the command."""
         s = self.sense
         assert s is not None, "act() before any sensing"
-        neighbours, weights = self.held_estimates()
+        now = s.t if self.lockstep else (self.sensed_t if self.sensed_t is not None else s.t) + self.since_sense_s
+        fresh_by = now - self.limits.staleness - 1e-9  # heard before this: stale (s)
+        neighbours, weights = self.held_estimates(fresh_by)
         p_i0, dp_i0 = self.offset.state(s.t)
+        hears = len(weights) > 0
         out = robot_control(
             s.p, self.ph, neighbours, weights, p_i0, dp_i0,
             s.po, s.vo, self.sc.d, self.sc.formation, self.sc.avoidance, self.sc.estimator, self.sc.v_max,
+            dph=None if hears else self.v_leader,  # hearing nobody: extrapolate
         )
+        flags = self._degraded_flags(fresh_by, hears, now)
+        if hears:
+            self.v_leader = self.v_leader + min(1.0, dt / LEADER_VELOCITY_TAU_S) * (out.dph - self.v_leader)
+        if flags & FLAG_NO_SENSING:
+            out = replace(out, v=np.zeros(3))  # blind for too long: stop rather than fly on old sensing
         self.speed_limited += out.speed_limited
         ph_used = self.ph
         self.ph = self.ph + dt * out.dph  # explicit Euler (SPEC section 7)
         self.acted_tick = s.tick
         self.seq_command += 1
-        cmd = Command("agent", self.id, self.seq_command, s.tick, s.t, self.id, out.v, ph_used, out.avoid_active)
+        if not self.lockstep:
+            self.since_sense_s += dt
+        cmd = Command("agent", self.id, self.seq_command, s.tick, s.t, self.id, out.v, ph_used, out.avoid_active,
+                      flags)
         return topics.command_topic(self.id), cmd
+
+    def _degraded_flags(self, fresh_by: float, hears: bool, now: float) -> int:
+        """The degraded modes of this step (``FLAG_*`` bits), counted in ``degraded_ticks``."""
+        flags = 0
+        if any((h := self.estimates.get(j)) is None or h.t < fresh_by for j in self.neighbour_ids):
+            flags |= FLAG_STALE_NEIGHBOUR
+        if self.pinned and (self.leader is None or self.leader.t < fresh_by):
+            flags |= FLAG_NO_LEADER
+        if not hears:
+            flags |= FLAG_EXTRAPOLATING
+        if self.sensed_t is None or now - self.sensed_t > self.limits.sense_timeout + 1e-9:
+            flags |= FLAG_NO_SENSING
+        if flags:
+            for bit, name in FLAG_NAMES.items():
+                if flags & bit:
+                    self.degraded_ticks[name] += 1
+        return flags

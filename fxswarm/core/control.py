@@ -218,6 +218,7 @@ def robot_control(
     avoidance: BehaviourGains,
     estimator: EstimatorGains,
     v_max: float | None = None,
+    dph: np.ndarray | None = None,
 ) -> ControlOutput:
     """One robot's whole law from local data only: eqs. (11), (v2), (v1), (v).
 
@@ -225,7 +226,8 @@ def robot_control(
     the robot senses nothing). The avoidance task is switched on only inside
     the repulsive zone of radius ``d`` (SPEC section 4).
     """
-    dph = estimator_rate(ph_i, neighbours, weights, estimator)
+    if dph is None:  # given: the estimate's rate when it is extrapolated (nobody heard)
+        dph = estimator_rate(ph_i, neighbours, weights, estimator)
     e = formation_error(p_i, ph_i, p_i0)
     v_if = formation_velocity(e, dph, dp_i0, formation)
     active = False

@@ -15,6 +15,7 @@ from fxswarm.agent.node import AgentNode
 from fxswarm.core.bus import InMemoryBus
 from fxswarm.core.metrics import estimate_errors, formation_errors, summarise
 from fxswarm.core.scenario import Scenario
+from fxswarm.faults.apply import SwarmFaults
 from fxswarm.leader.node import LeaderNode
 from fxswarm.world.node import WorldNode
 
@@ -42,8 +43,9 @@ class Simulation:
         sc = self.scenario
         self.world = WorldNode(sc)
         self.leader = LeaderNode(sc)
-        self.agents = [AgentNode(sc, r.id) for r in sc.robots]
-        for node in (self.world, self.leader, *self.agents):
+        self.faults = SwarmFaults(sc)  # the scenario's [faults], if any, on each receiver's inbox
+        self.agents = [self.faults.agent(r.id, lambda i=r.id: AgentNode(sc, i)) for r in sc.robots]
+        for node in (self.faults.world(self.world), self.leader, *self.agents):
             attach(self.bus, node)
 
     def run(self, progress=None) -> dict:
@@ -64,6 +66,7 @@ class Simulation:
         summary = summarise(self.scenario, self.world.trajectory(), wall)
         summary["counters"] = {"bus": self.bus.counters.as_dict(), "missed_ticks": self.world.missed_ticks}
         summary["speed_limited_ticks"] = sum(a.speed_limited for a in self.agents)
+        summary.update(self.faults.summary(self.world.trajectory(), self.world))
         return summary
 
     def trajectory(self) -> dict[str, np.ndarray]:

@@ -14,6 +14,7 @@ import numpy as np
 from fxswarm.core import bus as topics
 from fxswarm.core.messages import Clock, Command, Message, Sense, WorldState
 from fxswarm.core.scenario import Scenario
+from fxswarm.faults.plan import degraded_limits
 
 
 def nearest_objects(p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, obstacle_v: np.ndarray):
@@ -52,6 +53,13 @@ class WorldNode:
         self.misses = np.zeros(n, dtype=int)
         self.seq = 0
         self.done = False
+        # Faults (docs/DESIGN.md "Faults"): which commands to wait for, silent robots, degraded modes.
+        self.expects = None  # lock-step: expects("agent:<id>", tick) -> bool, set by a fault filter
+        self.limits = degraded_limits(scenario)
+        self.silent_s = np.zeros(n)  # how long each robot's agent has been silent, s
+        self.held_at_zero = np.zeros(n, dtype=int)  # ticks a silent robot was held at zero velocity
+        self.flag_ticks = np.zeros((n, 8), dtype=int)  # ticks each Command.flags bit was set, per robot
+        self._heard: set[int] = set()  # real time: robots heard since the last advance
         self._sensed: tuple | None = None
         self.record = record
         if record:
@@ -88,7 +96,7 @@ class WorldNode:
             return []
         if msg.tick == self.tick:
             self.commands[msg.robot] = msg
-            if len(self.commands) == self.sc.n:
+            if len(self.commands) == self.sc.n or (self.expects is not None and not self.waiting_for()):
                 return self._finish_tick()
         elif msg.tick > self.tick:
             return []  # from the future: cannot happen in lock-step; ignore
@@ -96,7 +104,10 @@ class WorldNode:
 
     def waiting_for(self) -> list[int]:
         """Robots whose command for the current tick has not arrived."""
-        return [r.id for r in self.sc.robots if r.id not in self.commands]
+        missing = [r.id for r in self.sc.robots if r.id not in self.commands]
+        if self.expects is not None:  # a fault filter knows these will not come this tick
+            missing = [r for r in missing if self.expects(f"agent:{r}", self.tick)]
+        return missing
 
     def timeout(self) -> list[topics.Outgoing]:
         """A tick's deadline passed: hold the last command of each silent robot and go on."""
@@ -113,6 +124,9 @@ class WorldNode:
             self.v[rid - 1] = cmd.v
             self.ph[rid - 1] = cmd.ph
             self.avoid[rid - 1] = cmd.avoid_active
+            if cmd.flags:
+                self.flag_ticks[rid - 1] += (cmd.flags >> np.arange(8)) & 1
+        self._note_silence(self.commands, self.sc.dt)
         self.commands = {}
         out = [self._state_message()]
         self._record()
@@ -130,9 +144,14 @@ class WorldNode:
         self.v[msg.robot - 1] = msg.v
         self.ph[msg.robot - 1] = msg.ph
         self.avoid[msg.robot - 1] = msg.avoid_active
+        self._heard.add(msg.robot)
+        if msg.flags:
+            self.flag_ticks[msg.robot - 1] += (msg.flags >> np.arange(8)) & 1
 
     def advance(self, dt: float) -> list[topics.Outgoing]:
         """Real time: record, integrate ``dt`` seconds on the held commands, emit the next tick."""
+        self._note_silence(self._heard, dt)
+        self._heard = set()
         out = [self._state_message()]
         self._record()
         self.p = self.p + dt * self.v
@@ -143,6 +162,17 @@ class WorldNode:
         return out + self._emit_tick()
 
     # --- shared -------------------------------------------------------------------------
+
+    def _note_silence(self, heard, dt: float) -> None:
+        """Robots not ``heard`` this step keep their last command until silent longer than
+        the limit; then the world holds them at zero velocity (a robot whose agent died stops)."""
+        silent = np.ones(self.sc.n, dtype=bool)
+        silent[[r - 1 for r in heard]] = False
+        self.silent_s = np.where(silent, self.silent_s + dt, 0.0)
+        hold = silent & (self.silent_s > self.limits.silent_hold + 1e-9)
+        if hold.any():
+            self.v[hold] = 0.0
+            self.held_at_zero += hold
 
     def _sense_now(self):
         t = self.t

@@ -1,0 +1,490 @@
+"""The fault plan: what the scenario's ``[faults]`` table says, and each message's fate.
+
+A message's fate (lost, delayed, duplicated) is a pure function of the
+plan's seed, the link (sender -> receiver), the message kind, its tick and
+its time: a counter-based hash, never a shared random stream. So the fate
+does not depend on arrival order or on which process computes it, and the
+in-memory simulator and a multi-process run agree message for message.
+Bursty loss (Gilbert-Elliott) is a two-state chain per link and kind,
+advanced once per sender tick; each step draws from the same hash, so the
+chain too is the same wherever it is evaluated.
+
+Endpoints are named ``world``, ``leader``, ``agent:<id>``; link patterns are
+``SRC->DST`` with shell wildcards (``agent:*->agent:4``, ``leader->*``).
+Kinds are the wire kinds of :mod:`fxswarm.core.messages`: ``estimate``,
+``leader``, ``sense``, ``command`` (``clock`` and ``state`` drive the
+lock-step and the loggers and are never faulted).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import struct
+from dataclasses import dataclass, field, replace
+from fnmatch import fnmatchcase
+
+from fxswarm.core.scenario import Scenario, ScenarioError, _Fields
+
+#: Kinds a link rule may touch; delays, duplication and reordering apply to the
+#: first two only: sensing and actuation are the world's physics here, and
+#: their loss is modelled (stale sensing, a held command), their lateness is not.
+FAULTABLE_KINDS = ("estimate", "leader", "sense", "command")
+LATE_KINDS = ("estimate", "leader")
+#: What a partition or an isolation cuts unless told: the robots' radio, not physics.
+CUT_KINDS_DEFAULT = ("estimate", "leader")
+
+
+@dataclass(frozen=True)
+class Burst:
+    """Gilbert-Elliott loss: per-tick transition probabilities and loss in each state."""
+
+    p_good_bad: float
+    p_bad_good: float
+    loss_good: float = 0.0
+    loss_bad: float = 1.0
+
+
+@dataclass(frozen=True)
+class LinkRule:
+    """Faults on every link matching ``src->dst`` for the given kinds.
+
+    drop: iid loss probability; burst: Gilbert-Elliott loss (both may be
+    set: either loses the message); delay: fixed latency, s; jitter: extra
+    latency drawn uniformly in [0, jitter), s; duplicate: probability of a
+    second copy; reorder: probability of an extra ``reorder_delay`` s, so
+    the message is overtaken by later ones.
+    """
+
+    src: str
+    dst: str
+    kinds: tuple[str, ...] = FAULTABLE_KINDS
+    drop: float = 0.0
+    burst: Burst | None = None
+    delay: float = 0.0
+    jitter: float = 0.0
+    duplicate: float = 0.0
+    reorder: float = 0.0
+    reorder_delay: float = 0.02
+
+    def matches(self, sender: str, receiver: str, kind: str) -> bool:
+        return kind in self.kinds and fnmatchcase(sender, self.src) and fnmatchcase(receiver, self.dst)
+
+    @property
+    def max_latency(self) -> float:
+        return self.delay + self.jitter + (self.reorder_delay if self.reorder > 0 else 0.0)
+
+
+@dataclass(frozen=True)
+class Cut:
+    """A time window ``[start, end)`` (s, message time) in which some links carry nothing.
+
+    links: ``(src, dst)`` patterns; isolate: robot ids cut from every other
+    robot and from the leader (both directions); label: how the summary names it.
+    """
+
+    start: float
+    end: float
+    links: tuple[tuple[str, str], ...] = ()
+    isolate: tuple[int, ...] = ()
+    kinds: tuple[str, ...] = CUT_KINDS_DEFAULT
+    label: str = "partition"
+
+    def cuts(self, sender: str, receiver: str, kind: str, t: float) -> bool:
+        if not (self.start <= t < self.end) or kind not in self.kinds:
+            return False
+        for r in self.isolate:
+            me = f"agent:{r}"
+            if (sender == me and receiver != me and receiver.startswith("agent:")) or (
+                    receiver == me and sender != me and (sender.startswith("agent:") or sender == "leader")):
+                return True
+        return any(fnmatchcase(sender, s) and fnmatchcase(receiver, d) for s, d in self.links)
+
+    def robots(self, n: int) -> list[int]:
+        """Robots this cut silences or deafens (for recovery measurement); all when unknown."""
+        if self.isolate and not self.links:
+            return sorted(self.isolate)
+        return list(range(1, n + 1))
+
+
+@dataclass(frozen=True)
+class ProcessFault:
+    """Kill (SIGKILL) a process at ``at`` s and restart it at ``restart`` s (None: never),
+    or freeze it (SIGSTOP) at ``at`` and thaw it (SIGCONT) at ``restart``."""
+
+    target: str  # "agent:<id>", "leader" or "world"
+    action: str  # "kill" | "freeze"
+    at: float
+    restart: float | None = None
+
+    @property
+    def label(self) -> str:
+        return f"{self.action} {self.target}"
+
+
+@dataclass(frozen=True)
+class DegradedLimits:
+    """How long an agent or the world trusts silence (s).
+
+    staleness: a neighbour's (or the leader's) estimate older than this
+    leaves the agent's sums; sense_timeout: an agent without sensing for
+    longer commands zero velocity; silent_hold: the world holds a robot whose
+    agent has been silent longer at zero velocity (before that, its last command).
+    """
+
+    staleness: float = 0.5
+    sense_timeout: float = 0.5
+    silent_hold: float = 0.5
+
+
+@dataclass(frozen=True)
+class Fate:
+    lost: bool
+    cause: str = ""  # "drop", "burst", "cut" or "" when delivered
+    delay: float = 0.0  # s
+    copies: int = 1
+
+
+DELIVERED = Fate(False)
+
+
+@dataclass(frozen=True)
+class FaultPlan:
+    """Every fault of a run. Empty plan => no wrapper, no cost, the clean run exactly."""
+
+    seed: int = 0
+    rules: tuple[LinkRule, ...] = ()
+    cuts: tuple[Cut, ...] = ()
+    processes: tuple[ProcessFault, ...] = ()
+    limits: DegradedLimits = field(default_factory=DegradedLimits)
+    _burst: dict = field(default_factory=dict, compare=False, repr=False)  # chain states per link
+    _rules_of: dict = field(default_factory=dict, compare=False, repr=False)  # link -> matching rules
+
+    @property
+    def has_link_faults(self) -> bool:
+        return bool(self.rules or self.cuts)
+
+    def touches(self, receiver: str) -> bool:
+        """Whether any link rule, cut or process fault can reach ``receiver`` (else it needs no
+        inbox filter): a dead agent concerns every receiver that would wait for it."""
+        if self.cuts or any(p.target.startswith("agent:") for p in self.processes):
+            return True
+        return any(fnmatchcase(receiver, r.dst) for r in self.rules)
+
+    def down(self, process: str, t: float) -> bool:
+        """Whether ``process`` (``agent:<id>``, ...) is killed or frozen at time ``t`` (s)."""
+        return any(p.target == process and p.at <= t + 1e-9 and (p.restart is None or t + 1e-9 < p.restart)
+                   for p in self.processes)
+
+    def max_delay_ticks(self, receiver: str, dt: float) -> int:
+        worst = max((r.max_latency for r in self.rules if fnmatchcase(receiver, r.dst)), default=0.0)
+        return int(math.ceil(worst / dt - 1e-9)) + 1 if worst > 0 else 0
+
+    def fate(self, sender: str, receiver: str, kind: str, tick: int, t: float) -> Fate:
+        """The fate of ``sender``'s tick-``tick`` message of ``kind`` at ``receiver`` (pure)."""
+        for cut in self.cuts:
+            if cut.cuts(sender, receiver, kind, t):
+                return Fate(True, "cut")
+        if kind not in FAULTABLE_KINDS:
+            return DELIVERED
+        link = (sender, receiver, kind)
+        matching = self._rules_of.get(link)
+        if matching is None:
+            matching = self._rules_of[link] = [(n, r) for n, r in enumerate(self.rules) if r.matches(*link)]
+        if not matching:
+            return DELIVERED
+        delay, copies = 0.0, 1
+        for n, rule in matching:
+            key = (n, sender, receiver, kind, tick)
+            if rule.drop > 0 and self.uniform("drop", *key) < rule.drop:
+                return Fate(True, "drop")
+            if rule.burst is not None and self._burst_loses(n, rule.burst, sender, receiver, kind, tick):
+                return Fate(True, "burst")
+            if kind in LATE_KINDS:
+                delay += rule.delay
+                if rule.jitter > 0:
+                    delay += rule.jitter * self.uniform("jitter", *key)
+                if rule.reorder > 0 and self.uniform("reorder", *key) < rule.reorder:
+                    delay += rule.reorder_delay
+                if rule.duplicate > 0 and self.uniform("dup", *key) < rule.duplicate:
+                    copies = 2
+        if delay == 0.0 and copies == 1:
+            return DELIVERED
+        return Fate(False, "", delay, copies)
+
+    def uniform(self, purpose: str, *key) -> float:
+        """A uniform number in [0, 1) that depends only on the seed and ``key``."""
+        digest = hashlib.blake2b(repr((self.seed, purpose) + key).encode(), digest_size=8).digest()
+        return struct.unpack("<Q", digest)[0] / 2.0**64
+
+    def _burst_loses(self, n: int, b: Burst, sender: str, receiver: str, kind: str, tick: int) -> bool:
+        bad = self._burst_state(n, b, sender, receiver, kind, tick)
+        return self.uniform("burst-loss", n, sender, receiver, kind, tick) < (b.loss_bad if bad else b.loss_good)
+
+    def _burst_state(self, n: int, b: Burst, sender: str, receiver: str, kind: str, tick: int) -> bool:
+        """Chain state at ``tick`` (True = bad), starting good at tick 0; cached per link."""
+        cache = self._burst.setdefault((n, sender, receiver, kind), [False])
+        while len(cache) <= tick:
+            k = len(cache)
+            u = self.uniform("burst-step", n, sender, receiver, kind, k)
+            cache.append(u >= b.p_bad_good if cache[-1] else u < b.p_good_bad)
+        return cache[tick]
+
+
+# --- parsing ----------------------------------------------------------------------
+
+
+def _fraction(f: _Fields, key: str) -> float:
+    value = f.number(key, 0.0, nonnegative=True)
+    if value > 1.0:
+        f.fail(key, "a probability in [0, 1]", value)
+    return value
+
+
+def _kinds(f: _Fields, key: str, default: tuple[str, ...]) -> tuple[str, ...]:
+    if key not in f.table:
+        return default
+    value = f.table[key]
+    if isinstance(value, str):
+        value = [value]
+    if not isinstance(value, list) or not value or not all(v in FAULTABLE_KINDS for v in value):
+        f.fail(key, f"a list of message kinds from {', '.join(FAULTABLE_KINDS)}", value)
+    return tuple(value)
+
+
+def _endpoint_ok(name: str) -> bool:
+    return name == "*" or name in ("world", "leader") or (
+        name.startswith("agent:") and (name[6:] == "*" or name[6:].isdigit() or any(c in name[6:] for c in "*?[")))
+
+
+def _link(f: _Fields, key: str | int, text) -> tuple[str, str]:
+    if not isinstance(text, str) or text.count("->") != 1:
+        f.fail(key, "a link 'SRC->DST' such as 'agent:*->agent:4', 'leader->*' or 'world->agent:5'", text)
+    src, dst = (s.strip() for s in text.split("->"))
+    for end in (src, dst):
+        if not _endpoint_ok(end):
+            f.fail(key, "endpoints 'world', 'leader', 'agent:<id>', 'agent:*' or '*'", text)
+    return src, dst
+
+
+def _links(f: _Fields) -> list[tuple[str, str]]:
+    if f.has("link") == f.has("links") and f.has("link"):
+        f.fail("link", "either 'link' or 'links', not both", show_got=False)
+    if f.has("link"):
+        return [_link(f, "link", f.table["link"])]
+    raw = f.table.get("links", [])
+    if not isinstance(raw, list):
+        f.fail("links", "a list of 'SRC->DST' links", raw)
+    lf = _Fields(f.source, {}, f.sub_path("links"))
+    return [_link(lf, k, x) for k, x in enumerate(raw)]
+
+
+def _window(f: _Fields, duration: float | None) -> tuple[float, float]:
+    start = f.number("start", nonnegative=True)
+    end = f.number("end", positive=True)
+    if end <= start:
+        f.fail("end", f"an end after start ({start:g} s)", end)
+    return start, end
+
+
+def _rule(f: _Fields) -> list[LinkRule]:
+    f.check_known({"link", "links", "kinds", "drop", "burst", "delay", "jitter", "duplicate", "reorder",
+                   "reorder_delay"})
+    links = _links(f)
+    if not links:
+        f.fail("link", "a link 'SRC->DST'", show_got=False)
+    burst = None
+    if f.has("burst"):
+        bf = f.table_at("burst")
+        bf.check_known({"p_good_bad", "p_bad_good", "loss_good", "loss_bad"})
+        burst = Burst(_fraction(bf, "p_good_bad"), _fraction(bf, "p_bad_good"),
+                      _fraction(bf, "loss_good"), bf.number("loss_bad", 1.0, nonnegative=True))
+        if burst.loss_bad > 1:
+            bf.fail("loss_bad", "a probability in [0, 1]", burst.loss_bad)
+    common = dict(
+        kinds=_kinds(f, "kinds", FAULTABLE_KINDS), drop=_fraction(f, "drop"), burst=burst,
+        delay=f.number("delay", 0.0, nonnegative=True), jitter=f.number("jitter", 0.0, nonnegative=True),
+        duplicate=_fraction(f, "duplicate"), reorder=_fraction(f, "reorder"),
+        reorder_delay=f.number("reorder_delay", 0.02, nonnegative=True),
+    )
+    return [LinkRule(src, dst, **common) for src, dst in links]
+
+
+def _robot_ids(f: _Fields, key: str, n: int) -> tuple[int, ...]:
+    raw = f.table.get(key, [])
+    if isinstance(raw, int) and not isinstance(raw, bool):
+        raw = [raw]
+    if not isinstance(raw, list) or not all(isinstance(x, int) and not isinstance(x, bool) and 1 <= x <= n
+                                            for x in raw):
+        f.fail(key, f"a list of robot ids in 1..{n}", raw)
+    return tuple(raw)
+
+
+def _target(f: _Fields, n: int) -> str:
+    target = f.string("target")
+    ok = target in ("world", "leader") or (
+        target.startswith("agent:") and target[6:].isdigit() and 1 <= int(target[6:]) <= n)
+    if not ok:
+        f.fail("target", f"'world', 'leader' or 'agent:<id>' with id in 1..{n}", target)
+    return target
+
+
+def parse_faults(table: dict | None, scenario_seed: int, n: int, source: str = "<scenario>") -> FaultPlan:
+    """Validate a ``[faults]`` table (as parsed TOML) into a :class:`FaultPlan`."""
+    if table is None:
+        return FaultPlan(seed=scenario_seed)
+    top = _Fields(source, {"faults": table})
+    f = top.table_at("faults")
+    f.check_known({"seed", "staleness", "sense_timeout", "silent_hold", "links", "partitions",
+                   "leader_outages", "processes"})
+    limits = DegradedLimits(
+        staleness=f.number("staleness", DegradedLimits.staleness, positive=True),
+        sense_timeout=f.number("sense_timeout", DegradedLimits.sense_timeout, positive=True),
+        silent_hold=f.number("silent_hold", DegradedLimits.silent_hold, positive=True),
+    )
+    rules: list[LinkRule] = []
+    for rf in f.tables("links"):
+        rules += _rule(rf)
+    cuts: list[Cut] = []
+    for pf in f.tables("partitions"):
+        pf.check_known({"start", "end", "link", "links", "isolate", "kinds"})
+        start, end = _window(pf, None)
+        isolate = _robot_ids(pf, "isolate", n)
+        links = tuple(_links(pf))
+        if not isolate and not links:
+            pf.fail("isolate", "robots to isolate or 'links' to cut", show_got=False)
+        what = (f"isolate {','.join(map(str, isolate))}" if isolate else "") + \
+               (" " if isolate and links else "") + " ".join(f"{s}->{d}" for s, d in links)
+        cuts.append(Cut(start, end, links, isolate, _kinds(pf, "kinds", CUT_KINDS_DEFAULT),
+                        label=f"partition {what} {start:g}-{end:g} s"))
+    for of in f.tables("leader_outages"):
+        of.check_known({"start", "end"})
+        start, end = _window(of, None)
+        cuts.append(Cut(start, end, (("leader", "*"),), (), ("leader",), label=f"leader outage {start:g}-{end:g} s"))
+    processes = []
+    for pf in f.tables("processes"):
+        pf.check_known({"target", "kill", "restart", "freeze", "thaw"})
+        target = _target(pf, n)
+        if pf.has("kill") == pf.has("freeze"):
+            pf.fail("kill", "exactly one of 'kill' (with optional 'restart') or 'freeze' (with 'thaw')",
+                    show_got=False)
+        action = "kill" if pf.has("kill") else "freeze"
+        at = pf.number(action, nonnegative=True)
+        back_key = "restart" if action == "kill" else "thaw"
+        other = "thaw" if action == "kill" else "restart"
+        if pf.has(other):
+            pf.fail(other, f"'{back_key}' with '{action}'", show_got=False)
+        back = pf.optional_number(back_key)
+        if back is not None and back <= at:
+            pf.fail(back_key, f"a time after {action} ({at:g} s)", back)
+        processes.append(ProcessFault(target, action, at, back))
+    seed = f.integer("seed", scenario_seed)
+    return FaultPlan(seed, tuple(rules), tuple(cuts), tuple(processes), limits)
+
+
+def plan_of(scenario: Scenario) -> FaultPlan:
+    """The scenario's fault plan (validated; raises :class:`ScenarioError` naming file and field)."""
+    return parse_faults(scenario.raw.get("faults"), scenario.seed, scenario.n, scenario.source)
+
+
+def degraded_limits(scenario: Scenario) -> DegradedLimits:
+    return plan_of(scenario).limits
+
+
+# --- command-line overrides --------------------------------------------------------
+
+CLI_HELP = (
+    "add a fault (repeatable): 'SRC->DST key=value ...' with keys drop, delay, jitter, duplicate, "
+    "reorder, reorder_delay, kinds (comma list), burst=p_gb,p_bg[,loss_good,loss_bad]; "
+    "'partition START-END isolate=3[,4]' or 'partition START-END links=a->b[,c->d]'; "
+    "'leader-outage START-END'; 'kill agent:2 at=10 [restart=12]'; 'freeze agent:2 at=10 [thaw=12]'; "
+    "'seed=N'; 'staleness=S', 'sense_timeout=S', 'silent_hold=S'"
+)
+
+
+def _cli_value(text: str):
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def with_cli_faults(scenario: Scenario, specs: list[str] | None) -> Scenario:
+    """The scenario with ``--fault`` specs appended to its ``[faults]`` table (validated)."""
+    if not specs:
+        plan_of(scenario)  # validate the file's table early
+        return scenario
+    faults = _copy_table(scenario.raw.get("faults") or {})
+    for k, spec in enumerate(specs):
+        where = f"--fault {spec!r}"
+        words = spec.split()
+        if not words:
+            raise ScenarioError(f"{where}: expected a fault, got nothing")
+        head, rest = words[0], words[1:]
+        try:
+            pairs = dict(w.split("=", 1) for w in rest)
+        except ValueError:
+            raise ScenarioError(f"{where}: expected key=value words after {head!r}") from None
+        if "->" in head:
+            entry: dict = {"link": head}
+            for key, value in pairs.items():
+                if key == "kinds":
+                    entry[key] = value.split(",")
+                elif key == "burst":
+                    parts = [float(x) for x in value.split(",")]
+                    entry[key] = dict(zip(("p_good_bad", "p_bad_good", "loss_good", "loss_bad"), parts))
+                else:
+                    entry[key] = _cli_value(value)
+            faults.setdefault("links", []).append(entry)
+        elif head in ("partition", "leader-outage"):
+            if not rest or "-" not in rest[0] or "=" in rest[0]:
+                raise ScenarioError(f"{where}: expected '{head} START-END ...' (seconds)")
+            a, b = rest[0].split("-", 1)
+            try:
+                entry = {"start": float(a), "end": float(b)}
+            except ValueError:
+                raise ScenarioError(f"{where}: expected START-END in seconds, got {rest[0]!r}") from None
+            pairs = dict(w.split("=", 1) for w in rest[1:] if "=" in w)
+            if head == "partition":
+                if "isolate" in pairs:
+                    entry["isolate"] = [int(x) for x in pairs.pop("isolate").split(",")]
+                if "links" in pairs:
+                    entry["links"] = pairs.pop("links").split(",")
+                if "kinds" in pairs:
+                    entry["kinds"] = pairs.pop("kinds").split(",")
+                faults.setdefault("partitions", []).append(entry | pairs)
+            else:
+                faults.setdefault("leader_outages", []).append(entry | pairs)
+        elif head in ("kill", "freeze"):
+            if not rest:
+                raise ScenarioError(f"{where}: expected '{head} TARGET at=SECONDS'")
+            entry = {"target": rest[0]}
+            pairs = dict(w.split("=", 1) for w in rest[1:] if "=" in w)
+            if "at" not in pairs:
+                raise ScenarioError(f"{where}: expected at=SECONDS")
+            entry[head] = float(pairs.pop("at"))
+            entry |= {key: _cli_value(v) for key, v in pairs.items()}
+            faults.setdefault("processes", []).append(entry)
+        elif "=" in head and not rest:
+            key, value = head.split("=", 1)
+            faults[key] = _cli_value(value)
+        else:
+            raise ScenarioError(f"{where}: expected 'SRC->DST ...', 'partition', 'leader-outage', 'kill', "
+                                f"'freeze' or key=value")
+    raw = dict(scenario.raw)
+    raw["faults"] = faults
+    out = replace(scenario, raw=raw)
+    plan_of(replace(out, source=f"{scenario.source} (with --fault)"))
+    return out
+
+
+def _copy_table(value):
+    if isinstance(value, dict):
+        return {k: _copy_table(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_copy_table(v) for v in value]
+    return value

@@ -1,0 +1,99 @@
+"""Process faults: kill / restart and freeze / thaw, as the plan schedules them.
+
+Over Zenoh the launcher sends the real signals (SIGKILL, SIGSTOP/SIGCONT)
+at the scheduled simulation times (:class:`ProcessSchedule`). In one
+process, :class:`Mortal` stands in for them: a killed node hears and says
+nothing, and at its restart time a fresh node (new state, as a restarted
+process would have) takes over; a frozen node's inbox fills, and at its
+thaw time the backlog arrives all at once, in order, as a SIGCONT'd
+process would read its socket.
+
+The plan's schedule is also what lock-step peers consult (through their
+inbox filter's ``expects``) so they do not wait for a dead robot, which is
+what keeps a lock-step run with crashes deterministic.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+from fxswarm.core import bus as topics
+from fxswarm.core.messages import Message
+from fxswarm.faults.plan import ProcessFault
+
+
+def active_fault(faults: list[ProcessFault] | tuple[ProcessFault, ...], t: float) -> ProcessFault | None:
+    """The fault whose window ``[at, restart)`` contains time ``t`` (s), if any."""
+    for f in faults:
+        if f.at <= t + 1e-9 and (f.restart is None or t + 1e-9 < f.restart):
+            return f
+    return None
+
+
+class Mortal:
+    """A node that ``faults`` kill or freeze; ``build()`` makes a fresh node for a restart.
+
+    Time is the newest message time heard (s). ``generations`` lists every
+    node built, for counters; ``restarts`` counts restarts.
+    """
+
+    def __init__(self, build: Callable[[], object], faults: list[ProcessFault]) -> None:
+        self.build = build
+        self.faults = list(faults)
+        self.node = build()
+        self.generations = [self.node]
+        self.state = "up"
+        self.backlog: list[tuple[str, Message]] = []
+        self.now = float("-inf")
+        self.restarts = 0
+
+    def __getattr__(self, name: str):
+        return getattr(self.node, name)
+
+    def subscriptions(self) -> list[str]:
+        return self.node.subscriptions()
+
+    def handle(self, topic: str, msg: Message) -> list[topics.Outgoing]:
+        self.now = max(self.now, msg.t)
+        fault = active_fault(self.faults, self.now)
+        out: list[topics.Outgoing] = []
+        if fault is None:
+            if self.state == "killed":
+                self.node = self.build()
+                self.generations.append(self.node)
+                self.restarts += 1
+            elif self.state == "frozen":
+                backlog, self.backlog = self.backlog, []
+                for old_topic, old_msg in backlog:
+                    out += self.node.handle(old_topic, old_msg)
+            self.state = "up"
+            return out + self.node.handle(topic, msg)
+        if fault.action == "kill":
+            self.state = "killed"
+            return out
+        self.state = "frozen"
+        self.backlog.append((topic, msg))
+        return out
+
+
+@dataclass
+class ProcessSchedule:
+    """The launcher's side: which signal to send to which process, once, as sim time passes.
+
+    ``due(t)`` returns the ``(action, target)`` pairs whose time has come and
+    not been returned before; actions: ``kill``, ``restart``, ``freeze``, ``thaw``.
+    """
+
+    faults: tuple[ProcessFault, ...]
+    _done: set = field(default_factory=set)
+
+    def due(self, t: float) -> list[tuple[str, str]]:
+        out = []
+        for n, f in enumerate(self.faults):
+            back = "restart" if f.action == "kill" else "thaw"
+            for what, when in ((f.action, f.at), (back, f.restart)):
+                if when is not None and t + 1e-9 >= when and (n, what) not in self._done:
+                    self._done.add((n, what))
+                    out.append((what, f.target))
+        return out
