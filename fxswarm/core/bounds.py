@@ -77,3 +77,70 @@ def estimator_bound_printed(H: np.ndarray, g: EstimatorGains) -> float:
     if i1 <= 1.0 or i2 >= 1.0:
         return math.inf
     return 1.0 / (k1 * (i1 - 1.0)) + 1.0 / (k2 * (1.0 - i2))
+
+
+def estimator_lyapunov_decay(H: np.ndarray, g: EstimatorGains) -> tuple[float, float, float, float]:
+    """``(a, p, b, q)`` with ``dV/dt <= -(a V^p + b V^q)`` for the estimator, per axis.
+
+    Derivation (for eq. (11) in its ``aggregate`` form, the one the paper's
+    proof uses; SPEC section 2). Per axis, stack the errors
+    ``delta_i = ph_i - p0`` into ``delta`` (n,); then ``eta = H delta`` is the
+    vector of the robots' ``eta3`` and each robot runs
+    ``dph_i = -K1 sig(eta_i, al) - K2 sig(eta_i, be) - K3 sign(eta_i)``
+    with ``al = r3/r4``, ``be = r5/r6``. Take ``V = delta^T H delta / 2``:
+
+    1. ``dV/dt = eta^T (dph - 1 dp0/dt) <= -K1 sum|eta_i|^(1+al) - K2 sum|eta_i|^(1+be)``,
+       since ``-K3 |eta|_1 - (dp0/dt) sum eta_i <= 0`` when ``K3 >= |dp0/dt|`` per axis.
+    2. Norm inequalities: ``sum|eta_i|^s >= n^min(0, 1 - s/2) |eta|^s`` (Hoelder for
+       ``s > 2``, monotonicity of p-norms for ``s <= 2``).
+    3. ``V = eta^T H^-1 eta / 2 <= |eta|^2 / (2 lmin(H))``, so ``|eta|^2 >= 2 lmin V``.
+
+    Hence ``a = K1 n^min(0,(1-al)/2) (2 lmin)^p``, ``p = (1+al)/2``, and
+    ``b = K2 n^min(0,(1-be)/2) (2 lmin)^q``, ``q = (1+be)/2``. ``p`` and ``q``
+    are the paper's ``i1`` and ``i2``; its printed ``k1``, ``k2`` use
+    ``(2 lmax^2/lmin)^(2 r4/(r3+r4))`` instead, which is what makes its ``T_E``
+    two orders of magnitude too small (SPEC section 6).
+    """
+    lmin = float(np.linalg.eigvalsh(H)[0])
+    n = len(H)
+    al, be = g.r3 / g.r4, g.r5 / g.r6
+    p, q = (1.0 + al) / 2.0, (1.0 + be) / 2.0
+    a = g.K1 * n ** min(0.0, (1.0 - al) / 2.0) * (2.0 * lmin) ** p
+    b = g.K2 * n ** min(0.0, (1.0 - be) / 2.0) * (2.0 * lmin) ** q
+    return a, p, b, q
+
+
+def _decay_time(x1: float, x0: float, a: float, p: float, b: float, q: float) -> float:
+    """``int_x1^x0 dx / (a x^p + b x^q)`` for ``0 < x1 <= x0 < inf``, s (log-grid trapezoid)."""
+    if x0 <= x1:
+        return 0.0
+    s = np.linspace(math.log(x1), math.log(x0), 20001)
+    x = np.exp(s)
+    return float(np.trapezoid(x / (a * x**p + b * x**q), s))
+
+
+def estimator_bound_derived(
+    H: np.ndarray, g: EstimatorGains, delta0: np.ndarray | None = None, tol: float = 0.0
+) -> float:
+    """A settling-time bound for the estimator that we derived and check (SPEC section 6), s.
+
+    Without ``delta0``: the uniform fixed-time bound, Lemma 1 (second form) applied to
+    :func:`estimator_lyapunov_decay`, ``1/(a (p-1)) + 1/(b (1-q))`` (infinite unless
+    ``r3/r4 > 1`` and ``r5/r6 < 1``). With ``delta0`` (n, 3), the initial errors
+    ``ph_i(0) - p0(0)``, and ``tol > 0``: the time by which every ``|ph_i - p0| < tol``,
+    ``max over axes of int_{V_tol}^{V_0} dV / (a V^p + b V^q)`` with
+    ``V_0 = delta^T H delta / 2`` on that axis and ``V_tol = lmin (tol/sqrt 3)^2 / 2``
+    (``V <= V_tol`` on every axis implies ``|delta_i| < tol``). Finite for every variant.
+    Proven for ``power = "aggregate"``; for ``"pairwise"`` (eq. (11) as printed) the
+    sweep checks it against measurements instead.
+    """
+    a, p, b, q = estimator_lyapunov_decay(H, g)
+    if delta0 is None:
+        if p <= 1.0 or q >= 1.0:
+            return math.inf
+        return 1.0 / (a * (p - 1.0)) + 1.0 / (b * (1.0 - q))
+    lmin = float(np.linalg.eigvalsh(H)[0])
+    v_tol = lmin * (tol / math.sqrt(3.0)) ** 2 / 2.0
+    delta0 = np.asarray(delta0, dtype=float).reshape(len(H), 3)
+    v0 = 0.5 * np.einsum("ic,ij,jc->c", delta0, H, delta0)
+    return max(_decay_time(v_tol, float(v), a, p, b, q) if v_tol > 0 else math.inf for v in v0)
