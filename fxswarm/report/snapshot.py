@@ -17,7 +17,7 @@ from pathlib import Path
 
 #: Where Debian's mesa-vulkan-drivers puts lavapipe's loader manifest.
 LAVAPIPE_ICD = Path("/usr/share/vulkan/icd.d/lvp_icd.x86_64.json")
-INSTALL_HINT = "apt-get install -y mesa-vulkan-drivers libvulkan1 (or run scripts/install-snapshot-deps.sh)"
+INSTALL_HINT = "apt-get install -y mesa-vulkan-drivers libvulkan1 (.ci/install-snapshot-deps.sh does it)"
 
 
 class SnapshotError(RuntimeError):
