@@ -35,6 +35,9 @@ import numpy as np
 from fxswarm.core import bus as topics
 from fxswarm.core.messages import WorldState
 from fxswarm.core.scenario import Scenario
+from fxswarm.faults.apply import merge_process_links
+from fxswarm.faults.plan import CLI_HELP as FAULT_HELP
+from fxswarm.faults.process import ProcessSchedule
 from fxswarm.runtime.output import write_summary
 from fxswarm.runtime.process import CLOCKS, PARENT_ENV
 from fxswarm.runtime.sim_cli import load_or_exit
@@ -128,6 +131,7 @@ class Swarm:
     tick_timeout: float = 1.0
     lease_ms: int | None = None
     world_args: tuple[str, ...] = ()
+    faults: tuple[str, ...] = ()  # --fault specs, passed on to every role process
     python: str = sys.executable
     scenario: Scenario | None = None
     children: dict[str, Child] = field(default_factory=dict)
@@ -154,6 +158,8 @@ class Swarm:
         argv = [self.python, "-m", "fxswarm.cli", role, self.config, *self._zenoh_args(), "--out", str(self.out)]
         if role in ("world", "leader", "agent"):
             argv += ["--clock", self.clock, "--speed", repr(self.speed)]
+            for spec in self.faults:
+                argv += ["--fault", spec]
         return argv + extra
 
     def planned(self) -> list[Child]:
@@ -241,13 +247,16 @@ class Swarm:
         if self.bus is not None:
             self.bus.poll(timeout)
         deaths = []
+        world = self.children.get("world")
+        run_over = world is not None and world.popen is not None and world.popen.poll() == 0
         for child in self.children.values():
             if child.popen is None or child.reported or child.stopped_by:
                 continue
             code = child.popen.poll()
             if code is not None:
                 child.reported = True
-                deaths.append(Death(child, code))
+                if not (run_over and code == 0):  # the world finished, the rest leave after it: planned
+                    deaths.append(Death(child, code))
         return deaths
 
     def wait_alive(self, name: str, timeout: float = 30.0) -> None:
@@ -260,6 +269,12 @@ class Swarm:
             if time.monotonic() > end:
                 raise TimeoutError(f"{name} still alive after {timeout:g} s")
             self.bus.poll(0.05)
+
+    def run_process_faults(self) -> list[tuple[str, str]]:
+        """Send the scenario's process faults (kill, restart, freeze, thaw) whose time has come."""
+        if getattr(self, "_process_faults", None) is None:
+            self._process_faults = ProcessSchedule.of(self.scenario, self.faults)
+        return self._process_faults.run(self)
 
     def sim_time(self) -> float:
         """Simulation time of the latest world state heard (s); -1 before any."""
@@ -361,6 +376,7 @@ class Swarm:
             return None
         summary = json.loads(path.read_text())
         summary["processes"] = self.process_counters()
+        merge_process_links(summary)
         summary.update(extra or {})
         write_summary(self.out, summary)
         return summary
@@ -388,6 +404,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fail-fast", action="store_true", help="end the run when any agent dies")
     p.add_argument("--start-timeout", type=float, default=60.0, help="seconds to wait for every process to be up")
     p.add_argument("--quiet", action="store_true", help="no progress line")
+    p.add_argument("--fault", action="append", default=None, metavar="SPEC", help=FAULT_HELP)
 
 
 def _progress(swarm: Swarm, t0: float, stream=sys.stderr) -> None:
@@ -413,7 +430,8 @@ def main(args: argparse.Namespace) -> int:
     sc = load_or_exit(args.config)
     out = Path(args.out or f"runs/{sc.name}")
     swarm = Swarm(args.config, out, clock=args.clock, speed=args.speed, swarm=args.swarm, port=args.port,
-                  logger=not args.no_logger, tick_timeout=args.tick_timeout, lease_ms=args.lease_ms, scenario=sc)
+                  logger=not args.no_logger, tick_timeout=args.tick_timeout, lease_ms=args.lease_ms, scenario=sc,
+                  faults=tuple(args.fault or ()))
     signal.signal(signal.SIGTERM, _raise_interrupt)  # a SIGTERM to the launcher stops the run like Ctrl-C
     say = (lambda *a: None) if args.quiet else (lambda text: print(text, file=sys.stderr))
     code = 0
@@ -426,8 +444,8 @@ def main(args: argparse.Namespace) -> int:
         world = swarm.children["world"]
         while True:
             deaths = swarm.poll(0.1)
-            if any(d.child is world and d.code == 0 for d in deaths):
-                break  # the run is complete: agents and leader now leave on their own
+            for action, target in swarm.run_process_faults():
+                say(f"\nfxswarm run: fault: {action} {target} at t = {swarm.sim_time():.2f} s")
             for d in deaths:
                 if d.child.role == "agent":
                     agent_deaths.append(d.child.name)

@@ -1,0 +1,136 @@
+"""Clean shutdown and deaths, with real processes: no orphans, no deadlock, clear reports."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from fxswarm.testing import scenario_with
+
+PAPER_FAST = Path(__file__).resolve().parents[1] / "configs" / "paper-fast.toml"
+
+
+def children_of(pid: int) -> dict[int, str]:
+    """{pid: command line} of the live direct children of ``pid``."""
+    out = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+            ppid = int(stat.rsplit(")", 1)[1].split()[1])
+            if ppid == pid:
+                out[int(entry.name)] = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except (OSError, ValueError, IndexError):
+            continue
+    return out
+
+
+def gone(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    try:  # a zombie counts as gone (it has exited; its parent has not reaped it)
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
+    except OSError:
+        return True
+
+
+def start_launcher(tmp_path: Path, duration: float, *extra: str) -> subprocess.Popen:
+    config = scenario_with(PAPER_FAST, tmp_path, duration=duration)
+    return subprocess.Popen(
+        [sys.executable, "-m", "fxswarm.cli", "run", str(config), "--out", str(tmp_path / "run"), "--no-logger", *extra],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+
+
+def wait_for_line(proc: subprocess.Popen, needle: str, timeout: float = 90.0) -> str:
+    """Read the launcher's stderr until a line contains ``needle`` (a message, not a sleep)."""
+    end = time.monotonic() + timeout
+    seen = []
+    while time.monotonic() < end:
+        line = proc.stderr.readline()
+        if not line:
+            break
+        seen.append(line)
+        if needle in line:
+            return line
+    raise AssertionError(f"no {needle!r} from the launcher; it said: {''.join(seen)[-2000:]}")
+
+
+@pytest.mark.zenoh
+def test_ctrl_c_stops_every_process_within_5_s_and_says_what_it_stopped(tmp_path):
+    launcher = start_launcher(tmp_path, 300.0)
+    try:
+        wait_for_line(launcher, "processes up")
+        kids = children_of(launcher.pid)
+        assert len(kids) >= 9, kids  # router, leader, 6 agents, world
+        t0 = time.monotonic()
+        launcher.send_signal(signal.SIGINT)
+        _, err = launcher.communicate(timeout=10)
+        took = time.monotonic() - t0
+        assert launcher.returncode == 130
+        assert took < 5.0, took
+        assert "stopped" in err and "world" in err
+        assert all(gone(pid) for pid in kids), {p: c for p, c in kids.items() if not gone(p)}
+    finally:
+        if launcher.poll() is None:
+            os.killpg(launcher.pid, signal.SIGKILL)
+            launcher.wait()
+
+
+@pytest.mark.zenoh
+def test_world_death_ends_the_run_non_zero_naming_it(tmp_path):
+    launcher = start_launcher(tmp_path, 300.0)
+    try:
+        wait_for_line(launcher, "processes up")
+        kids = children_of(launcher.pid)
+        (world,) = [pid for pid, cmd in kids.items() if " world " in cmd]
+        os.kill(world, signal.SIGKILL)
+        _, err = launcher.communicate(timeout=15)
+        assert launcher.returncode == 1
+        assert f"world (pid {world}) died: killed by SIGKILL" in err
+        assert all(gone(pid) for pid in kids)
+    finally:
+        if launcher.poll() is None:
+            os.killpg(launcher.pid, signal.SIGKILL)
+            launcher.wait()
+
+
+@pytest.mark.zenoh
+def test_a_killed_agent_is_reported_and_the_swarm_runs_on_to_the_end(launch_swarm):
+    swarm = launch_swarm(PAPER_FAST, duration=2.0)
+    pids = swarm.pids()
+    swarm.wait_for_sim_time(0.5)
+    os.kill(swarm.pid("agent-3"), signal.SIGKILL)  # unplanned: not through the handle
+    summary = swarm.wait_done(timeout=120)
+    assert [d.child.name for d in swarm.deaths] == ["agent-3"]
+    assert summary["complete"] and summary["ticks"] == 200
+    # Robot 3 is held at its last command; the world closed its ticks without waiting a timeout each.
+    assert summary["missed_ticks_per_robot"]["3"] > 100
+    assert summary["wall_s"] < 60
+    assert "agent-3" not in summary["processes"]  # it never wrote its counters
+    assert all(gone(pid) for pid in pids.values())
+
+
+@pytest.mark.zenoh
+def test_a_frozen_agent_costs_missed_ticks_never_a_deadlock_and_a_restart_rejoins(launch_swarm):
+    swarm = launch_swarm(PAPER_FAST, duration=5.0, tick_timeout=0.1)
+    swarm.wait_for_sim_time(0.3)
+    swarm.freeze("agent-2")
+    swarm.step(6, timeout=20)  # the world goes on: each tick closes at its deadline
+    swarm.thaw("agent-2")
+    swarm.kill("agent-5")
+    swarm.restart("agent-5")
+    t_back = swarm.step(20, timeout=30)
+    summary = swarm.wait_done(timeout=120)
+    assert t_back < 5.0, "the run ended before the restarted agent could rejoin: lengthen it"
+    assert summary["complete"] and summary["missed_ticks"] >= 5
+    assert summary["missed_ticks_per_robot"]["2"] >= 5
+    assert summary["processes"]["agent-5"]["sent"] > 0  # the restarted agent spoke
