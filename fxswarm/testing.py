@@ -111,6 +111,7 @@ class SwarmUnderTest:
 
     def pump(self, timeout: float = 0.05) -> None:
         self.deaths += self.swarm.poll(timeout)
+        self.swarm.run_process_faults()  # the scenario's [[faults.processes]], at their times
 
     def sim_time(self) -> float:
         return self.swarm.sim_time()

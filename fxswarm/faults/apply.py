@@ -72,3 +72,45 @@ class SwarmFaults:
     def summary(self, traj: dict[str, np.ndarray], world) -> dict:
         """The summary additions (faults, degraded modes, recoveries) for this runner's nodes."""
         return fault_summary(self.sc, self.plan, traj, world, self.link_counts(), self.restarts())
+
+
+def wrap_for_process(node, role: str, ident: int, scenario: Scenario, args) -> object:
+    """A role process's node behind the scenario's faults (with its ``--fault`` overrides).
+
+    Real time: delays are in simulation seconds on a clock running ``--speed``
+    times wall time. Process faults are the launcher's (real signals) here.
+    """
+    from fxswarm.faults.plan import with_cli_faults
+
+    sc = with_cli_faults(scenario, getattr(args, "fault", None))
+    plan = plan_of(sc)
+    speed = float(getattr(args, "speed", 1.0) or 1.0)
+    lockstep = getattr(args, "clock", "lockstep") == "lockstep"
+    return wrap(node, role, ident, plan, sc.dt, lockstep, lambda: time.monotonic() * speed)
+
+
+def process_counters(node) -> dict:
+    """What a role process adds to its counters file: its inbox's per-link counts."""
+    while node is not None and not isinstance(node, FaultyInbox):
+        node = getattr(node, "inner", None) if not isinstance(node, Mortal) else node.node
+    return {"links": {k: dict(v.__dict__) for k, v in node.links.items()}} if node is not None else {}
+
+
+def merge_process_links(summary: dict) -> None:
+    """Launcher: sum the processes' per-link counts into ``summary["faults"]["links"]``."""
+    merged: dict[str, dict[str, int]] = {}
+    for counters in (summary.get("processes") or {}).values():
+        for key, c in (counters.get("links") or {}).items():
+            m = merged.setdefault(key, {"delivered": 0, "dropped": 0, "delayed": 0, "duplicated": 0})
+            for name in m:
+                m[name] += int(c.get(name, 0))
+    if "faults" in summary or merged:
+        summary.setdefault("faults", {})["links"] = dict(sorted(merged.items()))
+
+
+def world_process_summary(scenario: Scenario, args, traj: dict[str, np.ndarray], world) -> dict:
+    """The world process's summary additions (links are merged in later by the launcher)."""
+    from fxswarm.faults.plan import with_cli_faults
+
+    sc = with_cli_faults(scenario, getattr(args, "fault", None))
+    return fault_summary(sc, plan_of(sc), traj, world, {}, {})

@@ -96,10 +96,21 @@ class FaultyInbox:
         self.install(node)
 
     def install(self, node) -> None:
-        """Attach (or re-attach, after a restart) the node this inbox feeds."""
+        """Attach (or re-attach, after a restart) the node this inbox feeds; the node under any
+        other wrapper (``.inner``) gets the ``expects`` hook and the plan's degraded limits."""
         self.node = node
-        if hasattr(node, "expects"):
-            node.expects = self.expects
+        core = node
+        while hasattr(core, "inner"):
+            core = core.inner
+        if hasattr(core, "expects"):
+            core.expects = self.expects
+        if hasattr(core, "limits"):
+            core.limits = self.plan.limits
+
+    @property
+    def inner(self):
+        """The wrapped node (the runtime's ``unwrap()`` walks ``.inner``)."""
+        return self.node
 
     def __getattr__(self, name: str):
         return getattr(self.node, name)

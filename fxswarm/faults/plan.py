@@ -425,11 +425,8 @@ def with_cli_faults(scenario: Scenario, specs: list[str] | None) -> Scenario:
         if not words:
             raise ScenarioError(f"{where}: expected a fault, got nothing")
         head, rest = words[0], words[1:]
-        try:
-            pairs = dict(w.split("=", 1) for w in rest)
-        except ValueError:
-            raise ScenarioError(f"{where}: expected key=value words after {head!r}") from None
         if "->" in head:
+            pairs = _pairs(where, head, rest)
             entry: dict = {"link": head}
             for key, value in pairs.items():
                 if key == "kinds":
@@ -448,7 +445,7 @@ def with_cli_faults(scenario: Scenario, specs: list[str] | None) -> Scenario:
                 entry = {"start": float(a), "end": float(b)}
             except ValueError:
                 raise ScenarioError(f"{where}: expected START-END in seconds, got {rest[0]!r}") from None
-            pairs = dict(w.split("=", 1) for w in rest[1:] if "=" in w)
+            pairs = _pairs(where, head, rest[1:])
             if head == "partition":
                 if "isolate" in pairs:
                     entry["isolate"] = [int(x) for x in pairs.pop("isolate").split(",")]
@@ -463,7 +460,7 @@ def with_cli_faults(scenario: Scenario, specs: list[str] | None) -> Scenario:
             if not rest:
                 raise ScenarioError(f"{where}: expected '{head} TARGET at=SECONDS'")
             entry = {"target": rest[0]}
-            pairs = dict(w.split("=", 1) for w in rest[1:] if "=" in w)
+            pairs = _pairs(where, head, rest[1:])
             if "at" not in pairs:
                 raise ScenarioError(f"{where}: expected at=SECONDS")
             entry[head] = float(pairs.pop("at"))
@@ -480,6 +477,12 @@ def with_cli_faults(scenario: Scenario, specs: list[str] | None) -> Scenario:
     out = replace(scenario, raw=raw)
     plan_of(replace(out, source=f"{scenario.source} (with --fault)"))
     return out
+
+
+def _pairs(where: str, head: str, words: list[str]) -> dict[str, str]:
+    if not all("=" in w for w in words):
+        raise ScenarioError(f"{where}: expected key=value words after {head!r}")
+    return dict(w.split("=", 1) for w in words)
 
 
 def _copy_table(value):

@@ -97,3 +97,33 @@ class ProcessSchedule:
                     self._done.add((n, what))
                     out.append((what, f.target))
         return out
+
+    @classmethod
+    def of(cls, scenario, specs: tuple[str, ...] | list[str] = ()) -> "ProcessSchedule":
+        """The schedule of ``scenario``'s ``[[faults.processes]]`` (plus ``--fault`` specs)."""
+        from fxswarm.faults.plan import plan_of, with_cli_faults
+
+        return cls(plan_of(with_cli_faults(scenario, list(specs))).processes)
+
+    def run(self, swarm) -> list[tuple[str, str]]:
+        """Send what is due to ``swarm`` (a :class:`fxswarm.runtime.launcher.Swarm`); return it.
+
+        Process names: ``agent:3`` -> ``agent-3``. A restart waits until the new
+        process is alive (it rejoins with a fresh state).
+        """
+        if not self.faults:
+            return []
+        done = self.due(swarm.sim_time())
+        for action, target in done:
+            name = target.replace(":", "-")
+            if name not in swarm.children:
+                continue
+            if action == "kill":
+                swarm.kill(name)
+            elif action == "restart":
+                swarm.restart(name)
+            elif action == "freeze":
+                swarm.freeze(name)
+            elif action == "thaw":
+                swarm.thaw(name)
+        return done

@@ -29,6 +29,8 @@ from pathlib import Path
 from fxswarm.core import bus as topics
 from fxswarm.core.messages import Message
 from fxswarm.core.scenario import Scenario
+from fxswarm.faults.apply import process_counters, wrap_for_process
+from fxswarm.faults.plan import CLI_HELP as FAULT_HELP
 from fxswarm.runtime.zenoh_bus import ZenohBus, add_zenoh_arguments, options_from_args
 
 #: Set by the launcher: a child whose parent is gone (even SIGKILLed) stops by itself.
@@ -49,12 +51,13 @@ def add_process_arguments(p: argparse.ArgumentParser) -> None:
                         "(default: 5 control periods)")
     p.add_argument("--out", default=None,
                    help="run folder; this process writes its counters to OUT/processes/<role>-<id>.json")
+    p.add_argument("--fault", action="append", default=None, metavar="SPEC", help=FAULT_HELP)
     add_zenoh_arguments(p)
 
 
 def wrap_node(node, role: str, ident: int, scenario: Scenario, args: argparse.Namespace):
-    """The one place where an inbox filter wraps a node (none yet: the node itself)."""
-    return node
+    """The one place where an inbox filter wraps a node: the scenario's faults (fxswarm.faults)."""
+    return wrap_for_process(node, role, ident, scenario, args)
 
 
 def unwrap(node):
@@ -196,6 +199,7 @@ class RoleProcess:
     def counters(self) -> dict:
         c = self.bus.counters.as_dict()
         c["stop_reason"] = self.stop_reason or "done"
+        c.update(process_counters(self.node))  # per-link fault counts, if a fault filter is in
         return c
 
     def write_counters(self, extra: dict | None = None) -> None:
@@ -234,6 +238,7 @@ def run_periodic_loop(proc: RoleProcess, period_wall: float, act, act_early=None
     while not proc.stopping:
         left = due - time.monotonic()
         proc.bus.poll(min(left, 0.1) if left > 0 else 0)
+        proc.publish(getattr(proc.node, "poll", lambda: [])())  # delayed messages now due (faults)
         now = time.monotonic()
         if now >= due or (act_early is not None and act_early()):
             act()

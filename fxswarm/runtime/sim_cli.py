@@ -8,6 +8,8 @@ import sys
 import warnings
 
 from fxswarm.core.scenario import ScenarioError, ScenarioWarning, load
+from fxswarm.faults.plan import CLI_HELP as FAULT_HELP
+from fxswarm.faults.plan import with_cli_faults
 from fxswarm.runtime.output import write_run
 from fxswarm.runtime.sim import Simulation, progress_line
 
@@ -17,6 +19,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default=None, help="run folder for summary.json and trajectory.npz "
                    "(default: runs/<scenario name>-sim)")
     p.add_argument("--quiet", action="store_true", help="no progress line")
+    p.add_argument("--fault", action="append", default=None, metavar="SPEC", help=FAULT_HELP)
 
 
 def load_or_exit(path: str):
@@ -35,6 +38,11 @@ def load_or_exit(path: str):
 
 def main(args: argparse.Namespace) -> int:
     sc = load_or_exit(args.config)
+    try:
+        sc = with_cli_faults(sc, args.fault)
+    except ScenarioError as exc:
+        print(f"fxswarm: {exc}", file=sys.stderr)
+        return 2
     out = args.out or f"runs/{sc.name}-sim"
     sim = Simulation(sc)
     summary = sim.run(progress=None if args.quiet else progress_line)

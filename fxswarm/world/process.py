@@ -27,6 +27,7 @@ import numpy as np
 from fxswarm.core.messages import Command, Message
 from fxswarm.core.metrics import summarise
 from fxswarm.core.scenario import Scenario
+from fxswarm.faults.apply import world_process_summary
 from fxswarm.runtime.output import write_run
 from fxswarm.runtime.process import RoleProcess, add_process_arguments, run_periodic_loop, wrap_node
 from fxswarm.runtime.sim_cli import load_or_exit
@@ -193,6 +194,7 @@ def main(args: argparse.Namespace) -> int:
             summary.update(clock=args.clock, speed=args.speed if not proc.lockstep else None,
                            complete=world.done, missed_ticks=world.missed_ticks,
                            missed_ticks_per_robot={str(r.id): int(m) for r, m in zip(sc.robots, world.misses)})
+            summary.update(world_process_summary(sc, args, world.trajectory(), world))  # faults, recoveries
             for key in ("sense_to_command", "overruns"):
                 if key in extra:
                     summary[key] = extra[key]
