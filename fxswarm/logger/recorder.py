@@ -276,6 +276,11 @@ class SwarmRecorder:
         if self._buffered >= o.flush_frames or self.wall_clock() - self._last_flush >= o.flush_wall_s:
             self.flush()
 
+    def flush_if_due(self) -> None:
+        """Idle time: send what is buffered once it has waited ``flush_wall_s`` (a live viewer stays current)."""
+        if self._buffered and self.wall_clock() - self._last_flush >= self.opt.flush_wall_s:
+            self.flush()
+
     def flush(self) -> None:
         """Send every buffered column batch to the recording."""
         for cols in self._cols.values():

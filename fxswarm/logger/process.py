@@ -1,0 +1,149 @@
+"""``fxswarm logger CONFIG --swarm NAME --out DIR --rerun file,grpc,...``: the swarm to Rerun, over Zenoh.
+
+One more process on the bus. It subscribes to ``world/state``,
+``leader/state`` and ``agent/*/estimate`` with its *own* Zenoh callbacks,
+which only drop the raw payload and its arrival time into a bounded ring
+(:class:`~fxswarm.logger.inbox.Inbox`): the bus never waits on the logger,
+and when the logger falls behind it loses the oldest messages and counts
+them. The main thread decodes, validates (as the Zenoh bus does) and hands
+messages to the :class:`~fxswarm.logger.recorder.SwarmRecorder`.
+
+It says it is alive (``alive/logger/0``) only once it is subscribed and the
+recording is open, so a launcher that waits for it loses no tick. It ends
+when the world, once seen, is gone (after draining what arrived), or on
+SIGINT/SIGTERM, and always closes the recording so the ``.rrd`` is complete.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+import uuid
+from pathlib import Path
+
+from fxswarm.core.messages import WireError, decode
+from fxswarm.logger.inbox import Inbox
+from fxswarm.logger.recorder import RECORDER_TOPICS, RecorderOptions, SwarmRecorder
+from fxswarm.logger.sinks import OutputError, open_recording, parse_outputs
+from fxswarm.runtime.process import RoleProcess, add_process_arguments
+from fxswarm.runtime.sim_cli import load_or_exit
+from fxswarm.runtime.zenoh_bus import check_sender
+
+DRAIN_BATCH = 2000  # messages handled between two looks at liveliness and signals
+SETTLE_S = 0.3  # after the world leaves: wait this long for samples still in flight
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    add_process_arguments(p)  # the options every role process takes (the launcher passes them alike)
+    g = p.add_argument_group("logging")
+    g.add_argument("--rerun", default="file", metavar="OUTPUTS",
+                   help="comma-separated outputs: file[=PATH] (default OUT/recording.rrd), grpc[=URL] "
+                        "(a running viewer), spawn (a local viewer), web[=PORT] (serve the web viewer)")
+    g.add_argument("--rate", type=float, default=None, metavar="HZ",
+                   help="frames per second of simulation time (default: [logging] rate_hz, else 25)")
+    g.add_argument("--velocities", action="store_true", default=None, help="draw velocity arrows")
+    g.add_argument("--inbox", type=int, default=4096, metavar="N",
+                   help="ring buffer size, messages; beyond it the oldest are dropped and counted")
+    g.add_argument("--recording-id", default=None, help="Rerun recording id (default: one per run)")
+
+
+class LoggerProcess:
+    """The logger's session, inbox and recorder; :meth:`run` until the world leaves or a signal."""
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.sc = load_or_exit(args.config)
+        self.args = args
+        out = Path(args.out or f"runs/{self.sc.name}")
+        try:
+            self.outputs = parse_outputs(args.rerun, out)
+            self.options = RecorderOptions.from_scenario(self.sc, rate_hz=args.rate, velocities=args.velocities)
+        except (OutputError, ValueError) as exc:
+            print(f"fxswarm logger: {exc}", file=sys.stderr)
+            raise SystemExit(2) from None
+        self.proc = RoleProcess("logger", 0, self.sc, args)
+        self.inbox = Inbox(args.inbox)
+        self.invalid = 0
+        self._subscribers = []  # kept referenced: a dropped subscriber stops delivering
+        recording_id = args.recording_id or f"{self.sc.name}-{self.proc.bus.swarm}-{uuid.uuid4().hex[:8]}"
+        self.rec, said = open_recording(self.outputs, recording_id)
+        for line in said:
+            print(f"fxswarm logger: {line}", file=sys.stderr)
+        self.recorder = SwarmRecorder(self.sc, self.rec, self.options, wall_clock=time.monotonic)
+        self.recorder.start()
+
+    def subscribe(self) -> None:
+        bus = self.proc.bus
+        cut = len(bus.root) + 1
+        put = self.inbox.put
+        now = time.monotonic
+
+        def on_sample(sample) -> None:  # Zenoh's thread: record the arrival, enqueue, return
+            put((str(sample.key_expr)[cut:], sample.payload.to_bytes(), now()))
+
+        for pattern in RECORDER_TOPICS:
+            self._subscribers.append(bus.session.declare_subscriber(f"{bus.root}/{pattern}", on_sample))
+        self.proc.watch(["world/0"])
+        bus.declare_alive("logger", 0)
+
+    def drain(self, limit: int | None = DRAIN_BATCH) -> int:
+        n = 0
+        take = self.recorder.take
+        for topic, payload, wall in self.inbox.drain(limit):
+            try:
+                msg = decode(payload)
+                check_sender(topic, msg)
+            except WireError:
+                self.invalid += 1
+                continue
+            take(topic, msg, wall)
+            n += 1
+        self.recorder.dropped = self.inbox.dropped
+        counters = self.proc.bus.counters  # the same counters every process reports in summary.json
+        counters.received += n
+        counters.invalid = self.invalid
+        counters.dropped = self.inbox.dropped
+        return n
+
+    def run(self) -> None:
+        proc = self.proc
+        while not proc.stopping:
+            proc.bus.poll(0.02 if len(self.inbox) == 0 else 0)  # liveliness, signals
+            if self.drain() == 0:
+                self.recorder.flush_if_due()
+            proc.check_parent()
+            proc.exit_with_world()
+        self._settle()
+
+    def _settle(self) -> None:
+        """Take what is still queued or in flight, briefly, then stop."""
+        quiet_since = time.monotonic()
+        end = quiet_since + 2.0
+        while time.monotonic() < end:
+            if self.drain(None):
+                quiet_since = time.monotonic()
+            elif time.monotonic() - quiet_since > SETTLE_S or self.proc.stop_reason.startswith("SIG"):
+                return
+            time.sleep(0.01)
+
+    def close(self) -> None:
+        try:
+            self.recorder.close(timeout_s=10.0)
+        finally:
+            extra = {"logger": {**self.recorder.counters(), "inbox_dropped": self.inbox.dropped,
+                                "invalid": self.invalid, "outputs": self.args.rerun}}
+            self.proc.write_counters(extra)
+            self.proc.close()
+
+
+def main(args: argparse.Namespace) -> int:
+    logger = LoggerProcess(args)
+    try:
+        logger.subscribe()
+        logger.run()
+    finally:
+        logger.close()
+    c = logger.recorder.counters()
+    print(f"fxswarm logger: {c['frames']} frames logged, {logger.inbox.dropped} messages dropped "
+          f"({logger.proc.stop_reason or 'done'})", file=sys.stderr)
+    return 0

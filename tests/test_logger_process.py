@@ -1,0 +1,46 @@
+"""The logger as a process on the Zenoh bus, started by the launcher beside the swarm."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fxswarm.core.metrics import formation_errors
+from fxswarm.logger import style
+from fxswarm.runtime.output import load_trajectory
+
+from test_logger_recording import EXPECTED, entities, read_series
+
+PAPER_FAST = Path(__file__).resolve().parents[1] / "configs" / "paper-fast.toml"
+
+
+@pytest.mark.zenoh
+def test_launcher_runs_the_logger_and_its_recording_matches_the_trajectory(launch_swarm):
+    swarm = launch_swarm(PAPER_FAST, logger=True, duration=2.0)
+    summary = swarm.wait_done(timeout=120)
+    rrd = swarm.out / "recording.rrd"
+    assert rrd.is_file(), "the logger left no recording"
+    logger = summary["processes"]["logger-0"]
+    assert logger["stop_reason"] == "world gone", logger
+    assert logger["invalid"] == 0
+    # Nothing dropped on a quiet machine, and whatever was dropped is counted, not lost silently.
+    frames = logger["logger"]["frames"]
+    ticks = summary["ticks"]
+    assert frames + logger["logger"]["skipped_by_rate"] + logger["dropped"] >= ticks
+    assert frames >= 0.9 * 2.0 * 25  # 25 Hz of simulation time, default rate
+
+    assert EXPECTED - {style.VELOCITIES} <= entities(rrd)
+    traj = load_trajectory(swarm.out)
+    series = read_series(rrd)
+    t = series[style.FORMATION_ERROR]["t"]
+    k = np.searchsorted(traj["t"], t - 1e-9)
+    np.testing.assert_allclose(traj["t"][k], t, atol=1e-9)
+    np.testing.assert_allclose(np.array(series[style.FORMATION_ERROR]["Scalars:scalars"]), formation_errors(traj)[k],
+                               rtol=1e-6)
+    np.testing.assert_allclose(np.array(series[style.ROBOTS]["Points3D:positions"]), traj["p"][k], atol=1e-4)
+    # Every robot's estimate reached the logger in time: no link was ever shown stale or dropping.
+    assert np.all(np.array(series[style.LINK_DROPS]["Scalars:scalars"]) == 0)
+    assert np.all(np.array(series[style.LINK_STALE]["Scalars:scalars"]) == 0)
+    assert len(series[style.TICK_RATE]["Scalars:scalars"]) > 0
