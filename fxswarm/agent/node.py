@@ -170,6 +170,7 @@ class AgentNode:
             s.p, self.ph, neighbours, weights, p_i0, dp_i0,
             s.po, s.vo, self.sc.d, self.sc.formation, self.sc.avoidance, self.sc.estimator, self.sc.v_max,
             dph=None if hears else self.v_leader,  # hearing nobody: extrapolate
+            semi_implicit_dt=dt if self.sc.discretisation == "semi-implicit" else None,  # default: Euler
         )
         flags = self._degraded_flags(fresh_by, hears, now)
         if hears:

@@ -219,17 +219,31 @@ def robot_control(
     estimator: EstimatorGains,
     v_max: float | None = None,
     dph: np.ndarray | None = None,
+    semi_implicit_dt: float | None = None,
 ) -> ControlOutput:
     """One robot's whole law from local data only: eqs. (11), (v2), (v1), (v).
 
     ``po``/``vo`` are the nearest object's position and velocity (None when
     the robot senses nothing). The avoidance task is switched on only inside
     the repulsive zone of radius ``d`` (SPEC section 4).
+    ``semi_implicit_dt`` (the control period, s; scenario ``discretisation =
+    "semi-implicit"``): the estimator and the formation behaviour take the
+    semi-implicit step (:func:`estimator_step_semi_implicit`,
+    :func:`formation_velocity_semi_implicit`) and ``dph`` is the step's mean rate
+    ``(ph_next - ph_i)/dt``, so that ``ph_i + dt*dph`` is the implicit solution.
+    None (the default): explicit Euler, SPEC section 7.
     """
     if dph is None:  # given: the estimate's rate when it is extrapolated (nobody heard)
-        dph = estimator_rate(ph_i, neighbours, weights, estimator)
+        if semi_implicit_dt is None:
+            dph = estimator_rate(ph_i, neighbours, weights, estimator)
+        else:
+            ph_next = estimator_step_semi_implicit(ph_i, neighbours, weights, estimator, semi_implicit_dt)
+            dph = (ph_next - ph_i) / semi_implicit_dt
     e = formation_error(p_i, ph_i, p_i0)
-    v_if = formation_velocity(e, dph, dp_i0, formation)
+    if semi_implicit_dt is None:
+        v_if = formation_velocity(e, dph, dp_i0, formation)
+    else:
+        v_if = formation_velocity_semi_implicit(e, dph, dp_i0, formation, semi_implicit_dt)
     active = False
     if po is not None:
         u = p_i - po
@@ -239,3 +253,167 @@ def robot_control(
             v_if = merged_velocity(v_io, u, v_if)
     v, limited = limit_speed(v_if, v_max)
     return ControlOutput(v=v, dph=dph, e=e, avoid_active=active, speed_limited=limited)
+
+
+# --- semi-implicit discretisation (scenario [controller] discretisation = "semi-implicit") ----------
+#
+# Explicit Euler on eq. (11) makes the sign term chatter: every tick it moves the estimate by
+# K3*dt past the consensus of its neighbours and back. The semi-implicit step solves, per robot and
+# per axis with the neighbours' values held at this tick, the implicit Euler equation of eq. (11);
+# its sign term is set-valued at consensus, so the step lands exactly on consensus whenever that is
+# within one step of it. The formation behaviour's step is chosen likewise so that the next task
+# value rho is the implicit Euler solution of d rho/dt = -task_rate(rho) (SPEC section 3).
+
+
+def _estimator_power_sum(x: float, ys: list[float], ws: list[float], gains: EstimatorGains) -> tuple[float, float]:
+    """``P(x)`` (the power terms of eq. (11), negated: ``dph = -P - K3 sign(eta3)``) and ``dP/dx``, one axis.
+
+    Infinite slopes (a difference exactly 0 raised to a power below 1) come back as ``inf``.
+    """
+    al, be = gains.r3 / gains.r4, gains.r5 / gains.r6
+    if gains.power == "aggregate":
+        diffs, wts = [sum(w * (x - y) for w, y in zip(ws, ys))], [1.0]
+        scale = sum(ws)  # d eta3 / dx
+    else:
+        diffs, wts, scale = [x - y for y in ys], ws, 1.0
+    p = dp = 0.0
+    for w, d in zip(wts, diffs):
+        ad = abs(d)
+        if ad == 0.0:
+            dp += math.inf if (al < 1.0 or be < 1.0) else w * (gains.K1 * (al == 1.0) + gains.K2 * (be == 1.0))
+            continue
+        sd = 1.0 if d > 0 else -1.0
+        pa, pb = ad**al, ad**be
+        p += w * sd * (gains.K1 * pa + gains.K2 * pb)
+        dp += w * (gains.K1 * al * pa + gains.K2 * be * pb) / ad
+    return p, dp * scale
+
+
+def _solve_increasing(fn, target: float, lo: float, hi: float, x: float) -> float:
+    """The root of ``fn(x)[0] = target`` in ``[lo, hi]`` for an increasing ``fn`` returning
+    ``(value, slope)``: Newton steps kept inside the bracket, bisection when they would leave it."""
+    for _ in range(200):
+        value, slope = fn(x)
+        r = value - target
+        if r > 0.0:
+            hi = x
+        elif r < 0.0:
+            lo = x
+        else:
+            return x
+        if hi - lo <= 4e-16 * max(1.0, abs(lo), abs(hi)):
+            break
+        step = x - r / slope if 0.0 < slope < math.inf else math.nan
+        x = step if lo < step < hi else 0.5 * (lo + hi)
+    return 0.5 * (lo + hi)
+
+
+def estimator_step_semi_implicit(
+    ph_i: np.ndarray,
+    neighbours: np.ndarray,
+    weights: np.ndarray,
+    gains: EstimatorGains,
+    dt: float,
+) -> np.ndarray:
+    """The next estimate ``ph_i(k+1)`` by a local semi-implicit step of eq. (11), m, shape (3,).
+
+    With the neighbours' values ``y_j`` held (those of tick k), each axis solves the
+    implicit Euler equation ``x = x_k + dt * dph(x)`` of eq. (11),
+    ``x - x_k + dt P(x) + dt K3 sign(eta3(x)) = 0``, where ``P`` collects the power
+    terms (increasing in ``x``, pairwise or aggregate as ``gains.power``) and
+    ``eta3(x) = sum_j a_ij (x - y_j)`` vanishes at the consensus ``x* = sum a y / sum a``.
+    The left side is increasing with an upward jump of ``2 dt K3`` at ``x*`` (the
+    sign is set-valued there, Filippov), so the solution is unique:
+
+    - ``|G(x*)| <= dt K3`` with ``G(x) = x - x_k + dt P(x)``: ``x = x*`` (snap to consensus);
+    - ``G(x*) > dt K3``: the root of ``G(x) = dt K3`` below ``x*``;
+    - ``G(x*) < -dt K3``: the root of ``G(x) = -dt K3`` above ``x*``,
+
+    each found by bracketed Newton. Far from consensus this is explicit Euler to
+    first order in ``dt`` (so the fixed-time convergence is kept); near it the step
+    cannot overshoot, which removes the sign term's ``K3 dt`` chattering. With no
+    neighbour at all (m = 0) the estimate stays.
+    """
+    if len(weights) == 0:
+        return np.array(ph_i, dtype=float)
+    ws = [float(w) for w in weights]
+    total = sum(ws)
+    out = np.empty(3)
+    for c in range(3):
+        xk = float(ph_i[c])
+        ys = [float(y) for y in neighbours[:, c]]
+        xs = sum(w * y for w, y in zip(ws, ys)) / total
+
+        def g(x: float, xk=xk, ys=ys) -> tuple[float, float]:
+            p, dp = _estimator_power_sum(x, ys, ws, gains)
+            return x - xk + dt * p, 1.0 + dt * dp
+
+        g_star = g(xs)[0]
+        jump = dt * gains.K3
+        if abs(g_star) <= jump:
+            out[c] = xs
+            continue
+        target = jump if g_star > 0.0 else -jump
+        width = max(abs(xk - xs), jump, 1e-12 * max(1.0, abs(xs)))
+        while True:  # bracket on the root's side of x*; G is unbounded, so this ends
+            far = xs - width if g_star > 0.0 else xs + width
+            if (g(far)[0] - target) * (g_star - target) <= 0.0:
+                break
+            width *= 2.0
+        lo, hi = (far, xs) if g_star > 0.0 else (xs, far)
+        explicit = xk - dt * (_estimator_power_sum(xk, ys, ws, gains)[0] + target / dt)
+        start = explicit if lo < explicit < hi else 0.5 * (lo + hi)
+        out[c] = _solve_increasing(g, target, lo, hi, start)
+    return out
+
+
+def implicit_task_value(rho: float, g: BehaviourGains, dt: float) -> float:
+    """``rho_next`` solving ``rho_next + dt * task_rate(rho_next) = rho`` (implicit Euler), m^2.
+
+    The left side increases from 0, so there is one root in ``[0, rho]``; it is found by
+    bracketed Newton in ``u = ln(rho_next)``, where the slope stays finite.
+    """
+    if rho <= 0.0:
+        return 0.0
+
+    def h(u: float) -> tuple[float, float]:
+        x = math.exp(u)
+        s = g.b1 * x**g.r1 + g.b2 * x**g.r2
+        rate = g.lam * s**g.r0
+        x_rate_slope = g.lam * g.r0 * s ** (g.r0 - 1.0) * (g.b1 * g.r1 * x**g.r1 + g.b2 * g.r2 * x**g.r2)
+        return x + dt * rate, x + dt * x_rate_slope
+
+    hi = math.log(rho)
+    lo = hi - 1400.0  # exp(lo) underflows to 0: below any root worth a float
+    explicit = rho - dt * task_rate(rho, g)
+    start = math.log(explicit) if explicit > 0.0 else 0.5 * (lo + hi)
+    return math.exp(_solve_increasing(h, rho, lo, hi, start))
+
+
+def formation_velocity_semi_implicit(
+    e_i: np.ndarray,
+    dph_i: np.ndarray,
+    dp_i0: np.ndarray,
+    g: BehaviourGains,
+    dt: float,
+) -> np.ndarray:
+    """The formation behaviour's velocity for a semi-implicit step of length ``dt``, m/s.
+
+    Chooses ``v`` so that after the world's step ``p += dt v`` (with the estimate moving
+    ``dt dph_i`` and the offset ``dt dp_i0``) the error is ``e_i * sqrt(rho_next/rho)``:
+    same direction, and ``rho_next`` the implicit Euler solution of
+    ``d rho/dt = -task_rate(rho)`` (:func:`implicit_task_value`):
+    ``v = (sqrt(rho_next/rho) - 1) e_i / dt + dph_i + dp_i0``.
+    As ``dt -> 0`` this is eq. (v2) plus ``(I - e e^T/|e|^2)(dph_i + dp_i0)``, the
+    reference's motion across ``e``: a null-space term of ``J_if = e^T`` that leaves
+    ``d rho/dt`` unchanged in continuous time, but without which a discrete step
+    lets the error grow by ``dt |feedforward across e|`` every tick.
+    Guard: for ``|e| < EPS`` the robot just follows its reference, as in eq. (v2).
+    """
+    feedforward = dph_i + dp_i0
+    e2 = float(e_i @ e_i)
+    if e2 < EPS * EPS:
+        return feedforward
+    rho = 0.5 * e2
+    shrink = math.sqrt(implicit_task_value(rho, g, dt) / rho)
+    return (shrink - 1.0) / dt * e_i + feedforward
