@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from fxswarm.core import bus as topics
-from fxswarm.core.messages import WorldState
+from fxswarm.core.messages import WireError, WorldState, decode
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.apply import merge_process_links
 from fxswarm.faults.plan import CLI_HELP as FAULT_HELP
@@ -135,7 +135,8 @@ class Swarm:
     python: str = sys.executable
     scenario: Scenario | None = None
     children: dict[str, Child] = field(default_factory=dict)
-    state: WorldState | None = None  # the latest world/state heard
+    _state_bytes: bytes | None = None  # the latest world/state heard, decoded only when asked
+    _state: WorldState | None = None
     alive: set[str] = field(default_factory=set)
     bus: ZenohBus | None = None
 
@@ -205,7 +206,7 @@ class Swarm:
             self._spawn(child)
         self.bus = ZenohBus(self.swarm, self.options, validate=True)
         self.bus.watch_alive("**", self._on_alive)
-        self.bus.subscribe(topics.WORLD_STATE, self._on_state)
+        self.bus.subscribe(topics.WORLD_STATE, self._on_state, raw=True)
         required = [c for c in self.children.values() if c.role != "logger"]
         self._wait_alive(required, t0 + timeout)
         logger = self.children.get("logger")
@@ -224,8 +225,19 @@ class Swarm:
     def _on_alive(self, name: str, up: bool) -> None:
         (self.alive.add if up else self.alive.discard)(name)
 
-    def _on_state(self, topic: str, msg) -> None:
-        self.state = msg
+    def _on_state(self, topic: str, payload: bytes) -> None:
+        self._state_bytes, self._state = payload, None
+
+    @property
+    def state(self) -> WorldState | None:
+        """The latest world state heard (None before the first, or if it was not valid)."""
+        if self._state is None and self._state_bytes is not None:
+            try:
+                msg = decode(self._state_bytes)
+                self._state = msg if isinstance(msg, WorldState) else None
+            except WireError:
+                self._state_bytes = None
+        return self._state
 
     def _wait_alive(self, children: list[Child], deadline: float) -> None:
         while True:
@@ -248,14 +260,16 @@ class Swarm:
             self.bus.poll(timeout)
         deaths = []
         world = self.children.get("world")
-        run_over = world is not None and world.popen is not None and world.popen.poll() == 0
+        # Once the world has finished (or gone), the others leave by themselves with code 0: planned.
+        run_over = world is not None and world.popen is not None and (
+            world.popen.poll() == 0 or world.token not in self.alive)
         for child in self.children.values():
             if child.popen is None or child.reported or child.stopped_by:
                 continue
             code = child.popen.poll()
             if code is not None:
                 child.reported = True
-                if not (run_over and code == 0):  # the world finished, the rest leave after it: planned
+                if not (run_over and code == 0):
                     deaths.append(Death(child, code))
         return deaths
 

@@ -71,10 +71,11 @@ class SimClock:
     """Simulation time in a real-time process: ``(wall - start) * speed``.
 
     The world starts the clock; the others learn its start from the world's
-    time-stamped messages: each one bounds the start from below by
-    ``received - t / speed`` (it cannot have been sent before it was made), and
-    the latest bound (the message that travelled fastest) is kept. No shared
-    wall clock is needed between machines.
+    time-stamped messages: a message for time ``t`` leaves no earlier than
+    ``start + t / speed`` and arrives later still, so each one bounds the start
+    from above by ``received - t / speed``; the smallest bound (the message
+    that travelled fastest) is kept. No shared wall clock is needed between
+    machines, and a late message never moves the clock back.
     """
 
     def __init__(self, speed: float) -> None:
@@ -82,13 +83,14 @@ class SimClock:
             raise ValueError(f"--speed: expected a positive number, got {speed}")
         self.speed = speed
         self.start: float | None = None
+        self._last = float("-inf")
 
     def start_now(self) -> None:
         self.start = time.monotonic()
 
     def observe(self, t: float, received: float) -> None:
         bound = received - t / self.speed
-        if self.start is None or bound > self.start:
+        if self.start is None or bound < self.start:
             self.start = bound
 
     @property
@@ -96,8 +98,10 @@ class SimClock:
         return self.start is not None
 
     def now(self) -> float:
+        """Simulation time, s; never decreases."""
         assert self.start is not None, "simulation time before the world started"
-        return (time.monotonic() - self.start) * self.speed
+        self._last = max(self._last, (time.monotonic() - self.start) * self.speed)
+        return self._last
 
     def wall_of(self, t: float) -> float:
         """The monotonic wall time at which simulation time ``t`` falls."""

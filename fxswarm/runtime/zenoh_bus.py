@@ -145,6 +145,8 @@ def check_sender(topic: str, msg: Message) -> None:
 # --- the bus -------------------------------------------------------------------------------
 
 _WAKE = object()  # queued by wake(): lets a blocked poll() return at once (e.g. on a signal)
+_ALIVE = object()  # tags a queued liveliness change
+_RAW = object()  # tags a payload handed over undecoded
 
 
 class ZenohBus:
@@ -183,13 +185,18 @@ class ZenohBus:
         pub.put(payload)
         self.counters.sent += 1
 
-    def subscribe(self, pattern: str, handler: Handler) -> None:
-        """Hand every valid message on ``pattern`` to ``handler(topic, msg)`` from :meth:`poll`."""
+    def subscribe(self, pattern: str, handler: Handler, raw: bool = False) -> None:
+        """Hand every valid message on ``pattern`` to ``handler(topic, msg)`` from :meth:`poll`.
+
+        ``raw=True``: hand over the undecoded payload instead (``handler(topic, bytes)``),
+        for a reader that only wants the latest of many (e.g. a progress line).
+        """
         cut = len(self.root) + 1
         put = self._inbox.put
+        tag = _RAW if raw else handler
 
         def on_sample(sample, handler=handler) -> None:  # Zenoh thread: enqueue only
-            put((handler, str(sample.key_expr)[cut:], sample.payload.to_bytes()))
+            put((handler, str(sample.key_expr)[cut:], sample.payload.to_bytes(), tag))
 
         self._subscribers.append(self.session.declare_subscriber(f"{self.root}/{pattern}", on_sample))
 
@@ -205,7 +212,7 @@ class ZenohBus:
         put = self._inbox.put
 
         def on_change(sample, handler=handler) -> None:
-            put((handler, str(sample.key_expr)[cut:], sample.kind == zenoh.SampleKind.PUT))
+            put((handler, str(sample.key_expr)[cut:], sample.kind == zenoh.SampleKind.PUT, _ALIVE))
 
         self._subscribers.append(self.session.liveliness().declare_subscriber(
             f"{self.root}/alive/{pattern}", on_change, history=True))
@@ -231,8 +238,8 @@ class ZenohBus:
                 return n
 
     def _dispatch(self, item) -> int:
-        handler, topic, payload = item
-        if isinstance(payload, bool):  # a liveliness change
+        handler, topic, payload, tag = item
+        if tag is _ALIVE or tag is _RAW:
             handler(topic, payload)
             return 0
         try:

@@ -123,6 +123,13 @@ def run_lockstep(proc: RoleProcess, tick_timeout: float) -> None:
 
 
 def run_realtime(proc: RoleProcess, inbox: RealTimeInbox) -> dict:
+    """Tick ``k`` is due at wall ``start + k*dt/speed``; integrate the held commands at each.
+
+    A late loop (a loaded machine) catches up by integrating the ticks it
+    missed back to back on the held commands and sends sensing for the latest
+    only, so simulation time stays tied to wall time (other processes derive
+    their clock from it); the ticks so skipped are counted as ``overruns``.
+    """
     world: WorldNode = proc.core
     sc = proc.sc
     period = sc.dt / proc.clock.speed
@@ -133,10 +140,12 @@ def run_realtime(proc: RoleProcess, inbox: RealTimeInbox) -> dict:
 
     def tick() -> None:
         nonlocal overruns
-        # Tick k+1 is due at sim time (k+1)*dt: integrate the held commands over dt.
-        if time.monotonic() > proc.clock.wall_of((world.tick + 1) * sc.dt) + period:
+        due = int(proc.clock.now() / sc.dt + 1e-9)  # the tick wall time has reached
+        out = world.advance(sc.dt)
+        while world.tick < due and not world.done:
             overruns += 1
-        proc.publish(world.advance(sc.dt))
+            out = world.advance(sc.dt)
+        proc.publish(out)
         inbox.sent(world.tick)
         if world.done:
             proc.stop("done")
