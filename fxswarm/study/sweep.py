@@ -36,8 +36,6 @@ import os
 import sys
 import time
 import warnings
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -52,6 +50,7 @@ from fxswarm.core.bounds import (
 from fxswarm.core.control import BehaviourGains
 from fxswarm.core.scenario import DISCRETISATIONS, VARIANTS, Scenario, ScenarioWarning
 from fxswarm.study.measure import initial_errors, settle_times
+from fxswarm.study.parallel import parallel_map
 from fxswarm.study.variants import case_toml, parse_case
 
 DEFAULT_SCALES = (1.0, 10.0, 100.0, 1000.0, 10000.0, 100000.0)
@@ -189,20 +188,8 @@ def plan(
 
 
 def run_sweep(cases: list[tuple[dict, str, str, float]], workers: int, progress=None) -> list[dict]:
-    """Run the cases on ``workers`` spawned processes (in this process if ``workers <= 1``)."""
-    rows = []
-    if workers <= 1:
-        for case in cases:
-            rows.append(run_case(*case))
-            if progress:
-                progress(rows[-1], len(rows), len(cases))
-    else:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
-            futures = [pool.submit(run_case, *case) for case in cases]
-            for fut in as_completed(futures):
-                rows.append(fut.result())
-                if progress:
-                    progress(rows[-1], len(rows), len(cases))
+    """Run the cases on ``workers`` spawned processes; rows ordered by variant, then scale."""
+    rows = parallel_map(run_case, cases, workers, progress)
     order = {v: k for k, v in enumerate(VARIANTS)}
     return sorted(rows, key=lambda r: (order.get(r["variant"], 99), r["scale"]))
 
