@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 
 # The main job: the paper scenario (leader climbing 1 m/s) as a multi-process swarm.
 run: $(STAMP)
-	$(VENV)/bin/fxswarm sim configs/paper-fast.toml --out runs/paper-fast
+	$(VENV)/bin/fxswarm run configs/paper-fast.toml --clock lockstep --out runs/paper-fast
 
 test: $(STAMP)
 	$(PY) -m pytest

@@ -94,3 +94,22 @@ def test_two_swarms_on_one_router_never_cross_talk(router):
     finally:
         for bus in (a, b, a2):
             bus.close()
+
+
+def test_zenoh_options_come_from_the_scenario_table_and_the_command_line_wins():
+    import argparse
+
+    from fxswarm.runtime.zenoh_bus import add_zenoh_arguments, options_from_args, zenoh_table
+
+    p = argparse.ArgumentParser()
+    add_zenoh_arguments(p)
+    table = {"swarm": "lab", "mode": "client", "connect": ["tcp/10.0.0.1:7447"], "lease_ms": 2000}
+    swarm, opts = options_from_args(p.parse_args([]), table)
+    assert swarm == "lab" and opts.mode == "client" and opts.connect == ("tcp/10.0.0.1:7447",)
+    assert not opts.multicast and opts.lease_ms == 2000
+    swarm, opts = options_from_args(p.parse_args(["--swarm", "x", "--mode", "peer", "--multicast"]), table)
+    assert swarm == "x" and opts.mode == "peer" and opts.multicast
+    for bad, field in (({"connect": "tcp/a:1"}, "zenoh.connect"), ({"mode": "mesh"}, "zenoh.mode"),
+                       ({"port": 1}, "zenoh.port")):
+        with pytest.raises(ValueError, match=f"x.toml: {field}"):
+            zenoh_table(bad, "x.toml")

@@ -307,7 +307,7 @@ def parse(data: dict, source: str = "<scenario>") -> Scenario:
     """Validate a parsed TOML document into a :class:`Scenario`."""
     top = _Fields(source, data)
     top.check_known({"scenario", "gains", "estimator", "graph", "leader", "formation", "robots",
-                     "obstacles", "faults", "controller", "logging"})
+                     "obstacles", "faults", "controller", "logging", "zenoh"})
     sc = top.table_at("scenario", required=True)
     sc.check_known({"name", "duration", "dt", "seed", "settle_tolerance", "d", "v_max"})
     name = sc.string("name", FilePath(source).stem)

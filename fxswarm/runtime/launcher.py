@@ -41,7 +41,7 @@ from fxswarm.faults.process import ProcessSchedule
 from fxswarm.runtime.output import write_summary
 from fxswarm.runtime.process import CLOCKS, PARENT_ENV
 from fxswarm.runtime.sim_cli import load_or_exit
-from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions
+from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions, zenoh_table
 
 STOP_BUDGET_S = 4.5  # Ctrl-C to nothing left: the issue promises 5 s
 
@@ -144,7 +144,11 @@ class Swarm:
         self.out = Path(self.out)
         if self.scenario is None:
             self.scenario = load_or_exit(self.config)
-        zen = self.scenario.raw.get("zenoh", {}) if isinstance(self.scenario.raw.get("zenoh"), dict) else {}
+        try:
+            zen = zenoh_table(self.scenario.raw.get("zenoh"), self.scenario.source)
+        except ValueError as exc:
+            print(f"fxswarm run: {exc}", file=sys.stderr)
+            raise SystemExit(2) from None
         self.swarm = self.swarm or zen.get("swarm") or f"{self.scenario.name}-{os.getpid()}"
         self.port = self.port or free_port()
         self.endpoint = f"tcp/127.0.0.1:{self.port}"

@@ -129,7 +129,11 @@ class RoleProcess:
         # A busy main thread delays Zenoh's callback threads by the switch interval (5 ms
         # by default, notes/zenoh.md): our callbacks only enqueue, so switch sooner.
         sys.setswitchinterval(0.0005)
-        swarm, options = options_from_args(args, scenario.raw.get("zenoh"))
+        try:
+            swarm, options = options_from_args(args, scenario.raw.get("zenoh"), scenario.source)
+        except ValueError as exc:
+            print(f"fxswarm {role}: {exc}", file=sys.stderr)
+            raise SystemExit(2) from None
         self.bus = ZenohBus(swarm, options)
         for sig in (signal.SIGTERM, signal.SIGINT):
             signal.signal(sig, self._on_signal)

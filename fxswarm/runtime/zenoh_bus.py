@@ -102,9 +102,32 @@ def add_zenoh_arguments(p: argparse.ArgumentParser, default_swarm: str = "defaul
                    help="session lease: how fast a frozen process is seen as gone")
 
 
-def options_from_args(args: argparse.Namespace, table: dict | None = None) -> tuple[str, ZenohOptions]:
+_ZENOH_FIELDS = {"swarm": str, "mode": str, "connect": list, "listen": list, "multicast": bool, "lease_ms": int}
+
+
+def zenoh_table(table, source: str = "<scenario>") -> dict:
+    """A scenario's ``[zenoh]`` table, checked; raises ValueError naming the file and field."""
+    if table is None:
+        return {}
+    if not isinstance(table, dict):
+        raise ValueError(f"{source}: zenoh: expected a table")
+    for key, value in table.items():
+        kind = _ZENOH_FIELDS.get(key)
+        if kind is None:
+            raise ValueError(f"{source}: zenoh.{key}: unknown field (expected one of {', '.join(_ZENOH_FIELDS)})")
+        if not isinstance(value, kind) or (kind is int and isinstance(value, bool)) or (
+                kind is list and not all(isinstance(e, str) for e in value)):
+            what = "a list of endpoint strings" if kind is list else f"a {kind.__name__}"
+            raise ValueError(f"{source}: zenoh.{key}: expected {what}, got {value!r}")
+    if "mode" in table and table["mode"] not in MODES:
+        raise ValueError(f"{source}: zenoh.mode: expected one of {', '.join(MODES)}, got {table['mode']!r}")
+    return table
+
+
+def options_from_args(args: argparse.Namespace, table: dict | None = None,
+                      source: str = "<scenario>") -> tuple[str, ZenohOptions]:
     """(swarm, options) from the command line, falling back to a scenario's ``[zenoh]`` table."""
-    table = table or {}
+    table = zenoh_table(table, source)
     swarm = args.swarm or table.get("swarm") or "default"
     mode = args.mode or table.get("mode") or "peer"
     connect = tuple(args.connect or table.get("connect") or ())
