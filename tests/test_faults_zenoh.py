@@ -2,16 +2,22 @@
 
 from __future__ import annotations
 
+import math
 import os
 import tomllib
 from pathlib import Path
 
+import msgpack
 import numpy as np
 import pytest
 
+from fxswarm.core.messages import (Clock, Command, Estimate, LeaderState, Message, Sense, WireError, WorldState,
+                                   decode, encode)
+from fxswarm.core.metrics import formation_errors
 from fxswarm.core.scenario import load
 from fxswarm.runtime.output import load_trajectory
 from fxswarm.runtime.sim import Simulation
+from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions, check_sender
 from fxswarm.testing import dump_toml
 
 PAPER_FAST = Path(__file__).resolve().parents[1] / "configs" / "paper-fast.toml"
@@ -61,3 +67,108 @@ def test_lockstep_processes_with_faults_match_the_simulator_bit_for_bit(launch_s
     assert links["agent:1->agent:2/estimate"]["duplicated"] > 0
     assert links["world->agent:5/sense"]["dropped"] > 0
     assert summary["faults"]["degraded_ticks"] == expected_summary["faults"]["degraded_ticks"]
+
+
+@pytest.mark.zenoh
+def test_agent_2_killed_at_10_s_and_restarted_at_12_s_rejoins_and_converges(launch_swarm):
+    """Real processes: the launcher SIGKILLs agent 2 at 10 s and starts a fresh one at 12 s."""
+    config = Path(__file__).resolve().parents[1] / "configs" / "faults-crash.toml"
+    swarm = launch_swarm(config)
+    summary = swarm.wait_done(timeout=300)
+    assert summary["complete"] and summary["ticks"] == swarm.scenario.ticks
+    assert not swarm.deaths  # the planned kill is not an unplanned death; nothing else died
+    err = formation_errors(load_trajectory(swarm.out))
+    tol = swarm.scenario.settle_tolerance
+    assert err[-1, 1] < tol, "robot 2 is not back in formation by the end"
+    crash = summary["faults"]["recoveries"][0]
+    assert crash["event"] == "kill agent:2" and crash["recovery_s"] is not None
+    degraded = summary["faults"]["degraded_ticks"]
+    assert degraded["world_held_at_zero"]["2"] > 0  # the world stopped the silent robot
+    assert degraded["stale_neighbour"]["1"] > 0 and degraded["stale_neighbour"]["3"] > 0
+
+
+# --- garbage on every key --------------------------------------------------------------------
+
+
+def rejected(topic: str, payload: bytes) -> bool:
+    """Whether a receiver drops ``payload`` on ``topic`` (the wire's own checks)."""
+    try:
+        check_sender(topic, decode(payload))
+    except WireError:
+        return True
+    return False
+
+
+def garbage_for(topic: str, sample: Message, rng: np.random.Generator) -> list[bytes]:
+    """Malformed payloads for ``topic``, from a valid ``sample``: random bytes, wrong msgpack
+    types, wrong shapes, NaN/inf, huge numbers, unknown schema versions, a stranger's id."""
+    out = [bytes(rng.integers(0, 256, size=int(n), dtype=np.uint8)) for n in (0, 1, 7, 64, 300)]
+    out += [msgpack.packb(x) for x in ([1, 2, 3], "hello", None, 3.5, {"schema": "x"}, 12)]
+    base = msgpack.unpackb(encode(sample))
+    out.append(encode(sample)[:-3])  # truncated
+    bad_values = ["str", None, [1.0, 2.0], [[1.0]], [math.nan, 0.0, 0.0], [math.inf, 0.0, 0.0],
+                  [1e300, 0.0, 0.0], -1, 2**60, True, {"a": 1}]
+    for key in base:
+        for value in bad_values:
+            out.append(msgpack.packb({**base, key: value}))
+        without = dict(base)
+        del without[key]
+        out.append(msgpack.packb(without))
+    out += [msgpack.packb({**base, "schema": v}) for v in (0, 2, 999, "1")]
+    if "robot" in base:
+        out.append(msgpack.packb({**base, "robot": 99, "sender": 99}))  # a stranger's robot id
+    if "sender" in base:
+        out.append(msgpack.packb({**base, "role": "agent", "sender": 99}))
+    return [p for p in out if rejected(topic, p)]
+
+
+def samples(sc) -> dict[str, Message]:
+    v = np.zeros(3)
+    out: dict[str, Message] = {
+        "clock": Clock("world", 0, 1, 1, 0.01),
+        "leader/state": LeaderState("leader", 0, 1, 1, 0.01, v),
+        "world/state": WorldState("world", 0, 1, 1, 0.01, np.zeros((sc.n, 3)), np.zeros((sc.n, 3)),
+                                  np.zeros((sc.n, 3)), np.zeros(sc.n), np.zeros(sc.n, dtype=bool), np.zeros((4, 3))),
+        "alive/agent/1": Clock("world", 0, 1, 1, 0.01),
+    }
+    for r in sc.robots:
+        out[f"world/sense/{r.id}"] = Sense("world", 0, 1, 1, 0.01, r.id, v, v, v)
+        out[f"agent/{r.id}/estimate"] = Estimate("agent", r.id, 1, 1, 0.01, r.id, v)
+        out[f"agent/{r.id}/cmd"] = Command("agent", r.id, 1, 1, 0.01, r.id, v, v, False)
+    return out
+
+
+@pytest.mark.zenoh
+def test_garbage_on_every_key_kills_nothing_is_counted_and_leaves_the_lockstep_run_unchanged(launch_swarm):
+    # A long tick timeout: a flooded process may be slow, but lock-step must wait for it, not skip.
+    swarm = launch_swarm(PAPER_FAST, duration=3.0, tick_timeout=20.0)
+    sc = swarm.scenario
+    rng = np.random.default_rng(4)
+    blasts = {topic: garbage_for(topic, msg, rng) for topic, msg in samples(sc).items()}
+    assert all(len(b) > 40 for t, b in blasts.items() if not t.startswith("alive")), \
+        {t: len(b) for t, b in blasts.items()}
+    attacker = ZenohBus(swarm.swarm.swarm, ZenohOptions("client", (swarm.swarm.endpoint,), (), False))
+    rounds = 0
+    try:
+        world = swarm.swarm.children["world"]
+        while world.running() and rounds < 30:
+            for topic, payloads in blasts.items():
+                for payload in payloads:
+                    attacker.publish_bytes(topic, payload)
+            rounds += 1
+            swarm.pump(0.05)
+        summary = swarm.wait_done(timeout=180)
+    finally:
+        attacker.close()
+    assert rounds >= 1
+    assert not swarm.deaths and summary["complete"] and summary["missed_ticks"] == 0
+    procs = summary["processes"]
+    assert set(procs) == {"world-0", "leader-0"} | {f"agent-{r.id}" for r in sc.robots}
+    for name, c in procs.items():
+        assert c["invalid"] > 0, (name, c)  # every process was hit and counted it
+        assert c["stop_reason"] in ("done", "world gone"), (name, c)
+    sim = Simulation(load(swarm.swarm.config))
+    sim.run()
+    expected, got = sim.trajectory(), load_trajectory(swarm.out)
+    for key in expected:
+        assert np.array_equal(got[key], expected[key]), key
