@@ -166,7 +166,8 @@ def decode(payload: bytes) -> Message:
         raise WireError("not a map")
     if raw.get("schema") != SCHEMA_VERSION:
         raise WireError(f"unknown schema version {raw.get('schema')!r}")
-    cls = KINDS.get(raw.get("kind"))  # type: ignore[arg-type]
+    kind = raw.get("kind")
+    cls = KINDS.get(kind) if isinstance(kind, str) else None  # a list here is no kind (nor hashable)
     if cls is None:
         raise WireError(f"unknown message kind {raw.get('kind')!r}")
     role = raw.get("role")
