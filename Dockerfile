@@ -22,8 +22,10 @@ COPY pyproject.toml README.md ./
 COPY fxswarm ./fxswarm
 RUN pip install --quiet --no-cache-dir . && rm -rf build fxswarm.egg-info
 COPY configs ./configs
+COPY docker/entrypoint.sh /usr/local/bin/fxswarm-entrypoint
 
 # Runs (summary.json, trajectory.npz, recording.rrd) go to /app/runs: mount a folder there.
 VOLUME ["/app/runs"]
-ENTRYPOINT ["fxswarm"]
+# `fxswarm "$@"`, with the fault specs of $FXSWARM_FAULTS added to role commands.
+ENTRYPOINT ["fxswarm-entrypoint"]
 CMD ["--help"]

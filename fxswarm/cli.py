@@ -23,6 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "report": ("fxswarm.report", "PNG figures and index.md from a run folder"),
     "sweep": ("fxswarm.study.sweep", "settling time against initial error, per controller variant"),
     "compose": ("fxswarm.runtime.compose", "write a docker-compose file for a scenario"),
+    "health": ("fxswarm.runtime.health", "exit 0 if a process of the swarm is alive (its liveliness token)"),
 }
 
 
