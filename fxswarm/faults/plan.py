@@ -234,7 +234,9 @@ class FaultPlan:
 # --- parsing ----------------------------------------------------------------------
 
 
-def _fraction(f: _Fields, key: str) -> float:
+def _fraction(f: _Fields, key: str, required: bool = False) -> float:
+    if required and not f.has(key):
+        f.fail(key, "a number (a probability in [0, 1])", show_got=False)
     value = f.number(key, 0.0, nonnegative=True)
     if value > 1.0:
         f.fail(key, "a probability in [0, 1]", value)
@@ -297,7 +299,7 @@ def _rule(f: _Fields) -> list[LinkRule]:
     if f.has("burst"):
         bf = f.table_at("burst")
         bf.check_known({"p_good_bad", "p_bad_good", "loss_good", "loss_bad"})
-        burst = Burst(_fraction(bf, "p_good_bad"), _fraction(bf, "p_bad_good"),
+        burst = Burst(_fraction(bf, "p_good_bad", True), _fraction(bf, "p_bad_good", True),
                       _fraction(bf, "loss_good"), bf.number("loss_bad", 1.0, nonnegative=True))
         if burst.loss_bad > 1:
             bf.fail("loss_bad", "a probability in [0, 1]", burst.loss_bad)

@@ -95,8 +95,8 @@ class ProcessSchedule:
             for what, when in ((f.action, f.at), (back, f.restart)):
                 if when is not None and t + 1e-9 >= when and (n, what) not in self._done:
                     self._done.add((n, what))
-                    out.append((what, f.target))
-        return out
+                    out.append((when, what, f.target))
+        return [(what, target) for _, what, target in sorted(out, key=lambda e: e[0])]  # in time order
 
     @classmethod
     def of(cls, scenario, specs: tuple[str, ...] | list[str] = ()) -> "ProcessSchedule":
