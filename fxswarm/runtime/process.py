@@ -128,7 +128,7 @@ class RoleProcess:
         self.parent_pid = int(parent) if parent else None
         # A busy main thread delays Zenoh's callback threads by the switch interval (5 ms
         # by default, notes/zenoh.md): our callbacks only enqueue, so switch sooner.
-        sys.setswitchinterval(0.0005)
+        sys.setswitchinterval(float(os.environ.get("FXSWARM_SWITCH_INTERVAL", "0.0005")))
         try:
             swarm, options = options_from_args(args, scenario.raw.get("zenoh"), scenario.source)
         except ValueError as exc:

@@ -1,0 +1,193 @@
+"""Benchmarks of the distributed runtime (real processes, real Zenoh sessions).
+
+    python benchmarks/bench_runtime.py [--quick] [--out benchmarks/results/runtime.json]
+
+Measures, and writes as JSON:
+
+- ``pingpong``: raw Zenoh round trip between two Python processes (~100 B
+  payload) through a Python router (client mode), the floor for everything else;
+- ``lockstep``: ticks per second of ``fxswarm run --clock lockstep`` with 6
+  (paper-fast) and 24 (large) agent processes, counted by the world after
+  everyone is up (start-up excluded);
+- ``realtime``: latency from the world's sensing message to the matching
+  command arriving back at the world, p50/p99/max, at 100 Hz (speed 1,
+  dt = 0.01 s) with 6 and 24 agents;
+- ``rss_mb``: resident memory of each agent process, sampled mid-run.
+
+Targets (issue 3, this 2-core machine): >= 500 lock-step ticks/s with 6
+agents, p99 < 5 ms with 6 agents, < 80 MB per agent. The machine is shared:
+the load average at each measurement is recorded beside it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from fxswarm.runtime.launcher import Swarm, free_port  # noqa: E402
+from fxswarm.testing import scenario_with  # noqa: E402
+
+PONG = r"""
+import sys, threading, zenoh
+from fxswarm.runtime.zenoh_bus import ZenohOptions
+conf = ZenohOptions("client", (sys.argv[1],), (), False).config()
+s = zenoh.open(conf)
+pub = s.declare_publisher("bench/pong", congestion_control=zenoh.CongestionControl.BLOCK,
+                          priority=zenoh.Priority.REAL_TIME, express=True)
+sub = s.declare_subscriber("bench/ping", lambda sample: pub.put(sample.payload.to_bytes()))
+tok = s.liveliness().declare_token("bench/alive/pong")
+sys.stdin.read()
+s.close()
+"""
+
+
+def load() -> float:
+    return os.getloadavg()[0]
+
+
+def pingpong(n: int = 2000) -> dict:
+    """Round trip of a ~100 B payload: this process <-> another via a Python router."""
+    import queue
+
+    import zenoh
+
+    from fxswarm.runtime.zenoh_bus import ZenohOptions
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = subprocess.Popen([sys.executable, "-m", "fxswarm.cli", "router", "--listen", endpoint],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    pong = subprocess.Popen([sys.executable, "-c", PONG, endpoint], stdin=subprocess.PIPE, cwd=ROOT)
+    s = zenoh.open(ZenohOptions("client", (endpoint,), (), False).config())
+    try:
+        replies: queue.SimpleQueue = queue.SimpleQueue()
+        sub = s.declare_subscriber("bench/pong", lambda sample: replies.put(time.perf_counter()))
+        up: queue.SimpleQueue = queue.SimpleQueue()
+        s.liveliness().declare_subscriber("bench/alive/**", lambda sample: up.put(1), history=True)
+        up.get(timeout=30)
+        pub = s.declare_publisher("bench/ping", congestion_control=zenoh.CongestionControl.BLOCK,
+                                  priority=zenoh.Priority.REAL_TIME, express=True)
+        payload = b"x" * 100
+        rtt = []
+        for k in range(n + 200):
+            t0 = time.perf_counter()
+            pub.put(payload)
+            t1 = replies.get(timeout=5)
+            if k >= 200:  # warm-up
+                rtt.append(t1 - t0)
+        del sub
+        return {"n": n, "payload_bytes": 100, "route": "client -> python router -> client, and back",
+                **stats_ms(rtt), "load_avg": load()}
+    finally:
+        s.close()
+        pong.stdin.close()
+        pong.wait(timeout=10)
+        router.terminate()
+        router.wait(timeout=10)
+
+
+def stats_ms(samples) -> dict:
+    a = np.asarray(samples) * 1e3
+    return {"p50_ms": float(np.percentile(a, 50)), "p99_ms": float(np.percentile(a, 99)),
+            "max_ms": float(a.max()), "mean_ms": float(a.mean())}
+
+
+def rss_mb(pid: int) -> float | None:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        return None
+    return None
+
+
+def run_swarm(config: Path, out: Path, clock: str, speed: float = 1.0, rss_at: float | None = None) -> dict:
+    """Run a scenario as processes (no logger); return the world's counters and agents' RSS."""
+    swarm = Swarm(str(config), out, clock=clock, speed=speed, logger=False)
+    rss: dict[str, float] = {}  # the largest resident size seen per agent, sampled about once a second
+    try:
+        swarm.start(timeout=120)
+        world = swarm.children["world"]
+        sampled = 0.0
+        while world.running():
+            swarm.poll(0.1)
+            if rss_at is not None and time.monotonic() - sampled > 1.0:
+                sampled = time.monotonic()
+                for c in swarm.children.values():
+                    if c.role == "agent" and (mb := rss_mb(c.pid)) is not None:
+                        rss[c.name] = max(mb, rss.get(c.name, 0.0))
+        swarm.stop(grace=3.0)
+        summary = swarm.merge_summary()
+    finally:
+        swarm.stop()
+    if summary is None or not summary.get("complete"):
+        raise RuntimeError(f"run in {out} did not complete; see {out}/logs")
+    return {"world": summary["processes"]["world-0"], "summary": summary, "rss": rss}
+
+
+def lockstep(config: Path, folder: Path, ticks: int) -> dict:
+    short = scenario_with(config, folder, duration=ticks * 0.01)
+    r = run_swarm(short, folder / f"lockstep-{config.stem}", "lockstep")
+    w = r["world"]
+    return {"scenario": config.name, "agents": r["summary"]["robots"], "ticks": w["ticks"],
+            "wall_s": w["wall_s"], "ticks_per_s": w["ticks_per_s"], "missed_ticks": w["missed_ticks"],
+            "load_avg": load()}
+
+
+def realtime(config: Path, folder: Path, duration: float) -> dict:
+    short = scenario_with(config, folder, duration=duration)
+    r = run_swarm(short, folder / f"realtime-{config.stem}", "realtime", speed=1.0, rss_at=duration / 2)
+    s = r["summary"]
+    rss = [v for v in r["rss"].values() if v is not None]
+    return {"scenario": config.name, "agents": s["robots"], "rate_hz": 1 / s["dt"], "duration_s": duration,
+            "sense_to_command": s["sense_to_command"], "overruns": s["overruns"],
+            "stale": {k: v["stale"] for k, v in s["processes"].items()},
+            "rss_mb_per_agent": {"max": max(rss) if rss else None, "mean": float(np.mean(rss)) if rss else None},
+            "load_avg": load()}
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "runtime.json"))
+    p.add_argument("--quick", action="store_true", help="fewer ticks (a smoke run)")
+    p.add_argument("--only", choices=("pingpong", "lockstep", "realtime"), action="append")
+    args = p.parse_args()
+    only = set(args.only or ("pingpong", "lockstep", "realtime"))
+    ticks = 300 if args.quick else 2000
+    rt_duration = 4.0 if args.quick else 15.0
+    result: dict = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
+                                "load_avg_at_start": load()},
+                    "targets": {"lockstep_ticks_per_s_6": 500, "realtime_p99_ms_6": 5.0, "rss_mb_per_agent": 80}}
+    configs = [ROOT / "configs" / "paper-fast.toml", ROOT / "configs" / "large.toml"]
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        if "pingpong" in only:
+            result["pingpong"] = pingpong(500 if args.quick else 3000)
+            print("pingpong", json.dumps(result["pingpong"]), file=sys.stderr)
+        if "lockstep" in only:
+            result["lockstep"] = [lockstep(c, folder, ticks) for c in configs]
+            print("lockstep", json.dumps(result["lockstep"]), file=sys.stderr)
+        if "realtime" in only:
+            result["realtime"] = [realtime(c, folder, rt_duration) for c in configs]
+            print("realtime", json.dumps(result["realtime"]), file=sys.stderr)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=2) + "\n")
+    print(json.dumps(result, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
