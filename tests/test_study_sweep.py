@@ -1,0 +1,125 @@
+"""The sweep: each controller variant's measured settle times behave as its theory says.
+
+fixed-time: bounded (below SPEC section 6's formation bound, estimator growth < 25 % per
+decade at the top); asymptotic: growing with the log of the initial error (>= 2x from
+scale 1 to 1e5); finite-time: growing as a power (measured formation times on the exact
+continuous-time curve, whose power-law shape tests/test_study_variants.py checks).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from fxswarm.core.scenario import load
+from fxswarm.study.sweep import claims, plan, run_sweep
+
+PAPER = "configs/paper.toml"
+
+
+def by_scale(rows: list[dict], variant: str) -> dict[float, dict]:
+    return {r["scale"]: r for r in rows if r["variant"] == variant}
+
+
+def within_exact(row: dict, rel: float = 0.05) -> bool:
+    """Measured formation-task settle time on the continuous-time prediction (+ two ticks)."""
+    exact = row["bounds"]["formation_exact_s"]
+    return abs(row["formation_settle_s"] - exact) <= rel * exact + 2 * row["dt"]
+
+
+@pytest.fixture(scope="module")
+def rows():
+    base = load(PAPER)
+    cases = (plan(base, [1e3, 1e4, 1e5], ["fixed-time"], duration=35.0)
+             + plan(base, [1.0], ["asymptotic"], duration=15.0)
+             + plan(base, [1e5], ["asymptotic"], duration=50.0)
+             + plan(base, [1.0, 10.0], ["finite-time"], duration=25.0)
+             + plan(base, [100.0], ["finite-time"], duration=45.0))
+    return run_sweep(cases, workers=2)
+
+
+def test_every_case_settles_and_avoidance_stays_off(rows):
+    for r in rows:
+        assert r["settled"], r
+        assert r["avoidance_episodes"] == 0
+
+
+def test_fixed_time_is_bounded(rows):
+    fixed = by_scale(rows, "fixed-time")
+    bound = fixed[1e5]["bounds"]["formation_bound_s"]
+    assert bound == pytest.approx(23.24, abs=0.01)
+    for r in fixed.values():
+        assert r["formation_settle_s"] < bound
+        assert within_exact(r)
+    growth = fixed[1e5]["estimate_settle_s"] / fixed[1e4]["estimate_settle_s"]
+    assert growth < 1.25
+    assert claims(rows)["fixed_time_formation_below_bound"] is True
+
+
+def test_asymptotic_keeps_growing(rows):
+    asym = by_scale(rows, "asymptotic")
+    assert asym[1e5]["formation_settle_s"] >= 2 * asym[1.0]["formation_settle_s"]
+    assert asym[1e5]["estimate_settle_s"] >= 2 * asym[1.0]["estimate_settle_s"]
+    # exponential decay of rho: never faster than the continuous-time log law
+    for r in asym.values():
+        assert r["formation_settle_s"] >= r["bounds"]["formation_exact_s"] - 2 * r["dt"]
+
+
+def test_finite_time_follows_its_power_law_curve(rows):
+    fin = by_scale(rows, "finite-time")
+    for r in fin.values():
+        assert within_exact(r)
+    times = [fin[s]["formation_settle_s"] for s in (1.0, 10.0, 100.0)]
+    assert times[0] < times[1] < times[2] and times[2] > 5 * times[0]
+
+
+def test_estimator_within_the_derived_bound(rows):
+    for r in rows:
+        assert r["estimate_settle_s"] <= r["bounds"]["estimator_derived_from_initial_s"], r
+        assert "estimator_printed_s" in r["bounds"]  # the paper's T_E: reported beside, never asserted against
+
+
+def test_sweep_command_writes_json_and_figure(tmp_path):
+    out = tmp_path / "sweep"
+    proc = subprocess.run(
+        [sys.executable, "-m", "fxswarm.cli", "sweep", PAPER, "--scales", "1,10", "--variants", "fixed-time",
+         "--duration", "12", "--workers", "2", "--out", str(out), "--quiet"],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads((out / "sweep.json").read_text())
+    assert [(r["variant"], r["scale"]) for r in doc["rows"]] == [("fixed-time", 1.0), ("fixed-time", 10.0)]
+    assert doc["settings"]["avoidance"] is False and doc["settings"]["dt"] == 0.01
+    assert doc["bounds"]["estimator_printed_s"] < 0.3 < 70 < doc["bounds"]["estimator_derived_s"]
+    for key in ("initial_error_m", "formation_settle_s", "estimate_settle_s", "bounds", "initial_errors_m"):
+        assert key in doc["rows"][0]
+    figure = out / "settling_vs_initial_error.png"
+    assert figure.is_file() and figure.stat().st_size > 10_000
+
+
+def test_sweep_command_refuses_bad_input(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "fxswarm.cli", "sweep", PAPER, "--variants", "sliding",
+                           "--out", str(tmp_path)], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and "fixed-time, asymptotic, finite-time" in proc.stderr
+
+
+@pytest.mark.slow
+def test_full_sweep_shows_the_claims():
+    """The issue's figures over scales 1..1e5 for every variant (minutes on 2 cores)."""
+    base = load(PAPER)
+    rows = run_sweep(plan(base, [1.0, 1e2, 1e4, 1e5], ["fixed-time", "asymptotic", "finite-time"]), workers=2)
+    c = claims(rows)
+    assert c["fixed_time_formation_below_bound"] is True
+    assert c["fixed_time_estimator_growth_1e4_to_1e5"] < 1.25
+    assert c["asymptotic_formation_growth_1_to_1e5"] >= 2 and c["asymptotic_estimator_growth_1_to_1e5"] >= 2
+    fin = by_scale(rows, "finite-time")
+    # a power law: roughly the same ratio per decade at the top, and far beyond the fixed-time bound
+    per_decade = (fin[1e5]["formation_settle_s"] / fin[1e4]["formation_settle_s"],
+                  (fin[1e4]["formation_settle_s"] / fin[1e2]["formation_settle_s"]) ** 0.5)
+    assert 1.4 < per_decade[0] < 2.0 and 1.4 < per_decade[1] < 2.0
+    assert fin[1e5]["formation_settle_s"] > 5 * c["fixed_time_formation_bound_s"]
+    for r in rows:
+        assert r["settled"] and r["estimate_settle_s"] <= r["bounds"]["estimator_derived_from_initial_s"]
