@@ -52,8 +52,11 @@ def has_colour(path: Path, rgb: int, tol: int = 25, min_pixels: int = 30) -> boo
 
 
 def test_report_writes_every_figure_and_index(run_dir):
-    assert cli(["report", str(run_dir)]) == 0
-    from fxswarm.logger.style import robot_rgb
+    assert cli(["report", str(run_dir), "--recording"]) == 0
+    from fxswarm.logger.style import FORMATION_ERROR, robot_rgb
+    from rerun.chunk import RrdReader
+
+    assert any(c.entity_path == "/" + FORMATION_ERROR for c in RrdReader(run_dir / "recording.rrd").stream())
 
     for name in FIGURES:
         size, ink, colours = image_stats(run_dir / name)

@@ -37,7 +37,7 @@ from fxswarm.core.messages import Clock, Estimate, LeaderState, Message, WorldSt
 from fxswarm.core.metrics import estimate_errors, formation_errors
 from fxswarm.core.scenario import Scenario
 from fxswarm.logger import style
-from fxswarm.logger.columns import EntityColumns
+from fxswarm.logger.columns import send_rows, strips_array
 
 
 @dataclass(frozen=True)
@@ -51,7 +51,7 @@ class RecorderOptions:
     stale_ticks: int = 2  # an estimate older than this many ticks makes its links stale
     recent_drop_s: float = 1.0  # a drop within this many simulated seconds turns a link red
     link_health: bool = True  # False when no messages are heard (a replay from trajectory.npz)
-    flush_frames: int = 25  # send the column batch after this many frames ...
+    flush_frames: int = 100  # send the column batches after this many frames ...
     flush_wall_s: float = 0.5  # ... or after this much wall time, whichever comes first
 
     @classmethod
@@ -79,47 +79,67 @@ class LinkHealth:
         self.edges = [(i, j) for i in ids for j in ids if i < j and sc.a[i - 1, j - 1] > 0]
         self.edges += [(0, i) for i in ids if sc.is_pinned(i)]
         self.names = [f"{'L' if i == 0 else i}-{j}" for i, j in self.edges]
-        self.last_tick = np.full(sc.n + 1, -1, dtype=np.int64)  # index = sender id
-        self.last_seq = np.zeros(sc.n + 1, dtype=np.int64)
-        self.drops = np.zeros(sc.n + 1, dtype=np.int64)
-        self.last_drop_t = np.full(sc.n + 1, -np.inf)
+        # Plain lists: heard() runs for every estimate on the bus, and list item access is
+        # several times cheaper than numpy's; at() converts once per logged frame.
+        self.last_tick = [-1] * (sc.n + 1)  # index = sender id
+        self.last_seq = [0] * (sc.n + 1)
+        self.drop_count = [0] * (sc.n + 1)
+        self.last_drop_t = [-math.inf] * (sc.n + 1)
         self.stale_frames = np.zeros(len(self.edges), dtype=np.int64)
         self._a = np.array([i for i, _ in self.edges], dtype=int)
         self._b = np.array([j for _, j in self.edges], dtype=int)
 
+    @property
+    def drops(self) -> np.ndarray:
+        """(n + 1,) sequence numbers skipped per sender (index 0: the leader)."""
+        return np.array(self.drop_count, dtype=np.int64)
+
     def heard(self, sender: int, seq: int, tick: int, t: float) -> None:
         if not 0 <= sender < len(self.last_tick):
             return
-        if self.last_seq[sender] and seq > self.last_seq[sender] + 1:
-            self.drops[sender] += seq - self.last_seq[sender] - 1
-            self.last_drop_t[sender] = t
-        self.last_seq[sender] = max(self.last_seq[sender], seq)
-        self.last_tick[sender] = max(self.last_tick[sender], tick)
+        last = self.last_seq[sender]
+        if seq > last:
+            if last and seq > last + 1:
+                self.drop_count[sender] += seq - last - 1
+                self.last_drop_t[sender] = t
+            self.last_seq[sender] = seq
+        if tick > self.last_tick[sender]:
+            self.last_tick[sender] = tick
 
     def at(self, tick: int, t: float, stale_ticks: int, recent_drop_s: float):
         """Per edge at world tick ``tick``: ``(bad (bool), drops, stale_frames)``, each shape (edges,).
 
         Counts a stale frame for each edge stale now (call once per logged frame).
         """
-        old = (tick - self.last_tick) > stale_ticks
-        recent = (t - self.last_drop_t) <= recent_drop_s
+        old = (tick - np.array(self.last_tick)) > stale_ticks
+        recent = (t - np.array(self.last_drop_t)) <= recent_drop_s
+        drops = self.drops
         stale = old[self._a] | old[self._b]
         self.stale_frames += stale
         bad = stale | recent[self._a] | recent[self._b]
-        return bad, self.drops[self._a] + self.drops[self._b], self.stale_frames.copy()
+        return bad, drops[self._a] + drops[self._b], self.stale_frames.copy()
 
 
 @dataclass
-class _Pace:
-    """The last logged frame's clock readings, for the real-time factor and tick rate."""
+class _Frame:
+    """One frame as buffered until the next flush: the state plus what had to be known at its time."""
 
-    t: float
-    tick: int
-    wall: float
+    state: WorldState
+    bad: np.ndarray  # (edges,) bool: link shown red
+    drops: np.ndarray | None  # (edges,) drops seen so far (None without link health)
+    stale: np.ndarray | None  # (edges,) stale frames so far
+    trail: np.ndarray | None  # (n, samples, 3) trail points, on frames where the trail moves on
+    pace: tuple[float, float] | None  # (real-time factor, ticks per wall second)
+    dropped: int
 
 
 class SwarmRecorder:
-    """The swarm of ``scenario`` written to ``rec``: call :meth:`start`, then :meth:`take`, then :meth:`close`."""
+    """The swarm of ``scenario`` written to ``rec``: call :meth:`start`, then :meth:`take`, then :meth:`close`.
+
+    :meth:`frame` only buffers (a few tens of microseconds); :meth:`flush`
+    turns the buffered frames into one column batch per entity, with the
+    errors computed for all frames at once by ``core.metrics``.
+    """
 
     def __init__(self, scenario: Scenario, rec: rr.RecordingStream, options: RecorderOptions | None = None,
                  wall_clock: Callable[[], float] = time.perf_counter) -> None:
@@ -130,30 +150,19 @@ class SwarmRecorder:
         self.links = LinkHealth(scenario)
         self.frames = 0  # frames logged
         self.skipped = 0  # world states not logged because of the rate limit
-        self.dropped = 0  # frames lost before reaching the recorder (set by the inbox owner)
+        self.dropped = 0  # messages lost before reaching the recorder (set by the inbox owner)
+        self._n = scenario.n
         self._next_due = -math.inf
-        self._pace: _Pace | None = None
+        self._last_pace: tuple[float, int, float] | None = None  # (t, tick, wall) of the last timed frame
         self._last_flush = wall_clock()
-        self._buffered = 0
-        n = scenario.n
+        self._pending: list[_Frame] = []
         self._trail: deque = deque(maxlen=max(2, int(round(self.opt.trail_s / self.opt.trail_dt)) + 1))
         self._next_trail = -math.inf
         self._moving_obstacles = any(o.max_speed_inf(scenario.duration) > 0 for o in scenario.obstacles)
-        self._edge_idx = np.array([(i - 1, j - 1) for i, j in self.links.edges if i > 0], dtype=int).reshape(-1, 2)
-        self._leader_edge_idx = np.array([j - 1 for i, j in self.links.edges if i == 0], dtype=int)
-        self._cols = {
-            path: EntityColumns(path, arch) for path, arch in [
-                (style.ROBOTS, rr.Points3D), (style.ESTIMATES, rr.Points3D), (style.SLOTS, rr.Points3D),
-                (style.LEADER, rr.Points3D), (style.TRAILS, rr.LineStrips3D), (style.EDGES, rr.LineStrips3D),
-                (style.OBSTACLES, rr.Ellipsoids3D), (style.VELOCITIES, rr.Arrows3D),
-                (style.FORMATION_ERROR, rr.Scalars), (style.NEAREST_DISTANCE, rr.Scalars),
-                (style.ESTIMATE_ERROR, rr.Scalars), (style.AVOID_ACTIVE, rr.Scalars),
-                (style.LINK_DROPS, rr.Scalars), (style.LINK_STALE, rr.Scalars),
-                (style.REAL_TIME_FACTOR, rr.Scalars), (style.TICK_RATE, rr.Scalars),
-                (style.LOGGER_DROPPED, rr.Scalars),
-            ]
-        }
-        self._n = n
+        robot_edges = [(i - 1, j - 1) for i, j in self.links.edges if i > 0]
+        self._edge_a = np.array([a for a, _ in robot_edges], dtype=int)
+        self._edge_b = np.array([b for _, b in robot_edges], dtype=int)
+        self._leader_edge = np.array([j - 1 for i, j in self.links.edges if i == 0], dtype=int)
 
     # --- static part ----------------------------------------------------------------------
 
@@ -205,88 +214,128 @@ class SwarmRecorder:
 
     def take(self, topic: str, msg: Message, wall: float | None = None) -> bool:
         """Take one bus message (``wall``: when it arrived, s); True if it produced a frame."""
-        if isinstance(msg, WorldState):
+        kind = type(msg)
+        if kind is Estimate:
+            self.links.heard(msg.robot, msg.seq, msg.tick, msg.t)
+        elif kind is WorldState:
             if msg.t + 1e-9 < self._next_due:
                 self.skipped += 1
                 return False
             self.frame(msg, wall)
             return True
-        if isinstance(msg, Estimate):
-            self.links.heard(msg.robot, msg.seq, msg.tick, msg.t)
-        elif isinstance(msg, LeaderState):
+        elif kind is LeaderState:
             self.links.heard(0, msg.seq, msg.tick, msg.t)
-        elif isinstance(msg, Clock):
-            pass  # the pace is measured on the frames themselves
-        return False
+        return False  # Clock: the pace is measured on the frames themselves
 
     def due(self, t: float) -> bool:
         """Whether a world state at simulation time ``t`` would be logged (cheap; for inboxes)."""
         return t + 1e-9 >= self._next_due
 
     def frame(self, s: WorldState, wall: float | None = None) -> None:
-        """Log one frame from the world's state ``s`` (no rate limit here)."""
-        sc, o, c = self.sc, self.opt, self._cols
+        """Buffer one frame of the world's state ``s`` (no rate limit here); flush when due."""
+        o = self.opt
         t, k = s.t, s.tick
         self._next_due = (math.floor(t * o.rate_hz + 1e-6) + 1) / o.rate_hz
-        p0 = sc.leader.position(t)
-        offsets = np.array([r.offset.position(t) for r in sc.robots])
-        one = {"p": s.p[None], "ph": s.ph[None], "p0": p0[None], "offsets": offsets[None]}
-        slots = p0 + offsets
-
-        c[style.ROBOTS].add(t, k, positions=s.p)
-        c[style.ESTIMATES].add(t, k, positions=s.ph)
-        c[style.SLOTS].add(t, k, positions=slots)
-        c[style.LEADER].add(t, k, positions=p0[None])
-        if self._moving_obstacles and len(s.obstacles):
-            c[style.OBSTACLES].add(t, k, centers=s.obstacles)
-        if o.velocities:
-            c[style.VELOCITIES].add(t, k, vectors=s.v, origins=s.p)
-        if t + 1e-9 >= self._next_trail:
-            self._trail.append(s.p.copy())
-            self._next_trail = t + o.trail_dt
-            hist = np.stack(self._trail, axis=1)  # (n, samples, 3)
-            c[style.TRAILS].add(t, k, strips=[hist[i] for i in range(self._n)])
-
         if o.link_health:
             bad, drops, stale = self.links.at(k, t, o.stale_ticks, o.recent_drop_s)
         else:
-            bad = np.zeros(len(self.links.edges), dtype=bool)
-        strips = [s.p[[i, j]] for i, j in self._edge_idx] + [np.stack([p0, s.p[j]]) for j in self._leader_edge_idx]
-        colours = np.where(bad, style.LINK_BAD, style.LINK_OK).astype(np.uint32)
-        c[style.EDGES].add(t, k, strips=strips, colors=colours)
-
-        nearest = np.where(s.nearest >= 0, s.nearest, np.nan)  # -1 on the wire: no object at all
-        c[style.FORMATION_ERROR].add(t, k, scalars=formation_errors(one)[0])
-        c[style.ESTIMATE_ERROR].add(t, k, scalars=estimate_errors(one)[0])
-        c[style.NEAREST_DISTANCE].add(t, k, scalars=np.append(nearest, sc.d))
-        c[style.AVOID_ACTIVE].add(t, k, scalars=s.avoid.astype(float))
-        if o.link_health and len(self.links.edges):
-            c[style.LINK_DROPS].add(t, k, scalars=drops.astype(float))
-            c[style.LINK_STALE].add(t, k, scalars=stale.astype(float))
+            bad, drops, stale = np.zeros(len(self.links.edges), dtype=bool), None, None
+        trail = None
+        if t + 1e-9 >= self._next_trail:
+            self._trail.append(s.p)
+            self._next_trail = t + o.trail_dt
+            trail = np.stack(self._trail, axis=1)  # (n, samples, 3)
+        pace = None
         if wall is not None:
-            if self._pace is not None and wall > self._pace.wall:
-                elapsed = wall - self._pace.wall
-                c[style.REAL_TIME_FACTOR].add(t, k, scalars=np.array([(t - self._pace.t) / elapsed]))
-                c[style.TICK_RATE].add(t, k, scalars=np.array([(k - self._pace.tick) / elapsed]))
-            self._pace = _Pace(t, k, wall)
-            c[style.LOGGER_DROPPED].add(t, k, scalars=np.array([float(self.dropped)]))
-
+            last = self._last_pace
+            if last is not None and wall > last[2]:
+                pace = ((t - last[0]) / (wall - last[2]), (k - last[1]) / (wall - last[2]))
+            self._last_pace = (t, k, wall)
+        self._pending.append(_Frame(s, bad, drops, stale, trail, pace, self.dropped))
         self.frames += 1
-        self._buffered += 1
-        if self._buffered >= o.flush_frames or self.wall_clock() - self._last_flush >= o.flush_wall_s:
+        if len(self._pending) >= o.flush_frames or self.wall_clock() - self._last_flush >= o.flush_wall_s:
             self.flush()
 
     def flush_if_due(self) -> None:
         """Idle time: send what is buffered once it has waited ``flush_wall_s`` (a live viewer stays current)."""
-        if self._buffered and self.wall_clock() - self._last_flush >= self.opt.flush_wall_s:
+        if self._pending and self.wall_clock() - self._last_flush >= self.opt.flush_wall_s:
             self.flush()
 
     def flush(self) -> None:
-        """Send every buffered column batch to the recording."""
-        for cols in self._cols.values():
-            cols.send(self.rec)
-        self._buffered = 0
+        """Send every buffered frame, one column batch per entity."""
+        frames, self._pending = self._pending, []
         self._last_flush = self.wall_clock()
+        if not frames:
+            return
+        sc, rec, n = self.sc, self.rec, self._n
+        states = [f.state for f in frames]
+        t = np.array([s.t for s in states])
+        k = np.array([s.tick for s in states])
+        p = np.stack([s.p for s in states])  # (F, n, 3)
+        ph = np.stack([s.ph for s in states])
+        p0 = np.array([sc.leader.position(x) for x in t])  # (F, 3)
+        offsets = np.array([[r.offset.position(x) for r in sc.robots] for x in t])  # (F, n, 3)
+        traj = {"p": p, "ph": ph, "p0": p0, "offsets": offsets}
+        flat = p.reshape(-1, 3)
+
+        send_rows(rec, style.ROBOTS, rr.Points3D, t, k, n, positions=flat)
+        send_rows(rec, style.ESTIMATES, rr.Points3D, t, k, n, positions=ph.reshape(-1, 3))
+        send_rows(rec, style.SLOTS, rr.Points3D, t, k, n, positions=(p0[:, None, :] + offsets).reshape(-1, 3))
+        send_rows(rec, style.LEADER, rr.Points3D, t, k, 1, positions=p0)
+        if self._moving_obstacles:
+            obstacles = np.stack([s.obstacles for s in states])
+            send_rows(rec, style.OBSTACLES, rr.Ellipsoids3D, t, k, obstacles.shape[1],
+                      centers=obstacles.reshape(-1, 3))
+        if self.opt.velocities:
+            v = np.stack([s.v for s in states]).reshape(-1, 3)
+            send_rows(rec, style.VELOCITIES, rr.Arrows3D, t, k, n, vectors=v, origins=flat)
+        self._send_trails(frames, t, k)
+        self._send_edges(frames, p, p0, t, k)
+
+        nearest = np.stack([s.nearest for s in states])
+        nearest = np.where(nearest >= 0, nearest, np.nan)  # -1 on the wire: no object at all
+        with_d = np.concatenate([nearest, np.full((len(t), 1), sc.d)], axis=1)
+        send_rows(rec, style.FORMATION_ERROR, rr.Scalars, t, k, n, scalars=formation_errors(traj).reshape(-1))
+        send_rows(rec, style.ESTIMATE_ERROR, rr.Scalars, t, k, n, scalars=estimate_errors(traj).reshape(-1))
+        send_rows(rec, style.NEAREST_DISTANCE, rr.Scalars, t, k, n + 1, scalars=with_d.reshape(-1))
+        avoid = np.stack([s.avoid for s in states]).astype(float)
+        send_rows(rec, style.AVOID_ACTIVE, rr.Scalars, t, k, n, scalars=avoid.reshape(-1))
+        edges = len(self.links.edges)
+        if self.opt.link_health and edges:
+            send_rows(rec, style.LINK_DROPS, rr.Scalars, t, k, edges,
+                      scalars=np.concatenate([f.drops for f in frames]).astype(float))
+            send_rows(rec, style.LINK_STALE, rr.Scalars, t, k, edges,
+                      scalars=np.concatenate([f.stale for f in frames]).astype(float))
+        timed = [i for i, f in enumerate(frames) if f.pace is not None]
+        if timed:
+            pace = np.array([frames[i].pace for i in timed])
+            send_rows(rec, style.REAL_TIME_FACTOR, rr.Scalars, t[timed], k[timed], 1, scalars=pace[:, 0])
+            send_rows(rec, style.TICK_RATE, rr.Scalars, t[timed], k[timed], 1, scalars=pace[:, 1])
+            send_rows(rec, style.LOGGER_DROPPED, rr.Scalars, t[timed], k[timed], 1,
+                      scalars=np.array([float(frames[i].dropped) for i in timed]))
+
+    def _send_trails(self, frames: list[_Frame], t: np.ndarray, k: np.ndarray) -> None:
+        rows = [i for i, f in enumerate(frames) if f.trail is not None]
+        if not rows:
+            return
+        trails = [frames[i].trail for i in rows]  # each (n, samples, 3)
+        points = np.concatenate([tr.reshape(-1, 3) for tr in trails])
+        lengths = np.concatenate([np.full(tr.shape[0], tr.shape[1]) for tr in trails])
+        send_rows(self.rec, style.TRAILS, rr.LineStrips3D, t[rows], k[rows], self._n,
+                  strips=strips_array(points, lengths))
+
+    def _send_edges(self, frames: list[_Frame], p: np.ndarray, p0: np.ndarray, t: np.ndarray, k: np.ndarray) -> None:
+        edges = len(self.links.edges)
+        if not edges:
+            return
+        ends = [np.stack([p[:, self._edge_a], p[:, self._edge_b]], axis=2)]  # (F, robot edges, 2, 3)
+        if len(self._leader_edge):
+            lead = np.broadcast_to(p0[:, None, :], (len(t), len(self._leader_edge), 3))
+            ends.append(np.stack([lead, p[:, self._leader_edge]], axis=2))
+        segments = np.concatenate(ends, axis=1)  # (F, edges, 2, 3), in LinkHealth.edges order
+        colours = np.where(np.concatenate([f.bad for f in frames]), style.LINK_BAD, style.LINK_OK).astype(np.uint32)
+        send_rows(self.rec, style.EDGES, rr.LineStrips3D, t, k, edges,
+                  strips=strips_array(segments.reshape(-1, 3), np.full(len(t) * edges, 2)), colors=colours)
 
     def close(self, timeout_s: float = 30.0) -> None:
         """Send what is buffered, wait for the sinks, disconnect."""
@@ -304,11 +353,16 @@ RECORDER_TOPICS = (topics.WORLD_STATE, topics.LEADER_STATE, topics.estimate_topi
 
 
 def attach(bus, recorder: SwarmRecorder) -> None:
-    """Subscribe ``recorder`` on an in-process bus (synchronous: for ``Simulation`` and tests)."""
+    """Subscribe ``recorder`` on an in-process bus (synchronous: for ``Simulation`` and tests).
+
+    Exact topics, no wildcard: the in-memory bus tests every wildcard against
+    every message, which would cost the whole swarm, not just the logger.
+    """
     clock = recorder.wall_clock
 
     def deliver(topic: str, msg: Message) -> None:
         recorder.take(topic, msg, clock())
 
-    for pattern in RECORDER_TOPICS:
-        bus.subscribe(pattern, deliver)
+    exact = [topics.WORLD_STATE, topics.LEADER_STATE] + [topics.estimate_topic(r.id) for r in recorder.sc.robots]
+    for topic in exact:
+        bus.subscribe(topic, deliver)

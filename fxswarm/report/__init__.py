@@ -22,6 +22,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dir", help="run folder (trajectory.npz, summary.json; sweep.json if any)")
     p.add_argument("--snapshot", action="store_true",
                    help="also render the Rerun viewer's default blueprint to PNG, headless")
+    p.add_argument("--recording", action="store_true",
+                   help="also write DIR/recording.rrd from the trajectory when the run has none (fxswarm sim)")
     p.add_argument("--times", default=None, metavar="T1,T2,...",
                    help="simulation times of the snapshots, s (default: three across the run)")
 
@@ -97,6 +99,10 @@ def main(args: argparse.Namespace) -> int:
         print(f"fxswarm report: {exc}", file=sys.stderr)
         return 2
     written = write_figures(run, summary, sc.d)
+    if args.recording and not (run / "recording.rrd").is_file():
+        from fxswarm.logger.replay import record_run
+
+        written.append(record_run(run, scenario=sc))
     shots: list[Path] = []
     if args.snapshot:
         from fxswarm.report.snapshot import SnapshotError, snapshots

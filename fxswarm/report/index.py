@@ -61,7 +61,7 @@ def write_index(run: Path, summary: dict, figures: list[Path], snapshots: list[P
             lines.append(f"| ... | {len(episodes) - 40} more | |")
         lines.append("")
     lines += ["## Figures", ""]
-    for path in figures:
+    for path in (f for f in figures if f.suffix == ".png"):
         lines += [f"![{path.stem}]({path.name})", "", _CAPTIONS.get(path.name, ""), ""]
     if not (run / "sweep.json").is_file():
         lines += ["_No `sweep.json` in this folder: run `fxswarm sweep` for settling time against "
