@@ -8,6 +8,7 @@ sleep: the runners drive it in lock-step or in real time.
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import replace
 
 import numpy as np
@@ -66,6 +67,10 @@ class AgentNode:
         self.sensed_t: float | None = None  # time of the last real (not replayed) sensing, s
         self.since_sense_s = 0.0  # real time: seconds acted since the last sensing
         self.v_leader = np.zeros(3)  # running mean of dph: the leader's velocity as estimated
+        self.v_extrapolate: np.ndarray | None = None  # while hearing nobody: the velocity used
+        # (t, ph, v_leader) of recent steps: extrapolation starts from the last step whose inputs
+        # were current, not from an estimate that spent the staleness window chasing held values.
+        self.history: deque = deque(maxlen=int(np.ceil(self.limits.staleness / scenario.dt)) + 8)
         self.degraded_ticks = {name: 0 for name in FLAG_NAMES.values()}
 
     # --- wiring -------------------------------------------------------------------------
@@ -166,15 +171,19 @@ class AgentNode:
         neighbours, weights = self.held_estimates(fresh_by)
         p_i0, dp_i0 = self.offset.state(s.t)
         hears = len(weights) > 0
+        if not hears and self.v_extrapolate is None:
+            self._start_extrapolating(now)
         out = robot_control(
             s.p, self.ph, neighbours, weights, p_i0, dp_i0,
             s.po, s.vo, self.sc.d, self.sc.formation, self.sc.avoidance, self.sc.estimator, self.sc.v_max,
-            dph=None if hears else self.v_leader,  # hearing nobody: extrapolate
+            dph=None if hears else self.v_extrapolate,  # hearing nobody: extrapolate
             semi_implicit_dt=dt if self.sc.discretisation == "semi-implicit" else None,  # default: Euler
         )
         flags = self._degraded_flags(fresh_by, hears, now)
         if hears:
             self.v_leader = self.v_leader + min(1.0, dt / LEADER_VELOCITY_TAU_S) * (out.dph - self.v_leader)
+            self.v_extrapolate = None
+        self.history.append((now, self.ph, self.v_leader))
         if flags & FLAG_NO_SENSING:
             out = replace(out, v=np.zeros(3))  # blind for too long: stop rather than fly on old sensing
         self.speed_limited += out.speed_limited
@@ -187,6 +196,21 @@ class AgentNode:
         cmd = Command("agent", self.id, self.seq_command, s.tick, s.t, self.id, out.v, ph_used, out.avoid_active,
                       flags)
         return topics.command_topic(self.id), cmd
+
+    def _start_extrapolating(self, now: float) -> None:
+        """Hearing nobody from ``now`` (s) on: go back to the step at the newest input's time and
+        carry that estimate forward at that step's estimated leader velocity."""
+        inputs = [h.t for h in self.estimates.values()] + ([self.leader.t] if self.leader is not None else [])
+        newest = max(inputs, default=None)
+        start = None
+        if newest is not None:
+            start = next((e for e in reversed(self.history) if e[0] <= newest + 1e-9), None)
+        if start is None:
+            self.v_extrapolate = self.v_leader
+            return
+        t0, ph0, v0 = start
+        self.v_extrapolate = v0
+        self.ph = ph0 + (now - t0) * v0
 
     def _degraded_flags(self, fresh_by: float, hears: bool, now: float) -> int:
         """The degraded modes of this step (``FLAG_*`` bits), counted in ``degraded_ticks``."""
