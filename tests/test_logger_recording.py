@@ -204,3 +204,53 @@ def test_options_from_scenario_logging_table(scenario):
     assert opts.rate_hz == 5.0 and opts.velocities and opts.trail_s == 3.0
     with pytest.raises(ValueError, match="rate_hz"):
         RecorderOptions.from_scenario(sc, rate_hz=0.0)
+
+
+@pytest.mark.slow
+def test_file_grpc_and_web_outputs_at_once(live_run, scenario, tmp_path):
+    """One recording to a file, a running (headless) viewer and the web viewer together."""
+    import socket
+    import time
+    import urllib.request
+
+    from fxswarm.report.snapshot import can_render, viewer_binary
+
+    why = can_render()
+    if why:
+        pytest.skip(f"no headless viewer here: {why}")
+    from rerun.experimental import ViewerClient
+
+    def free_port() -> int:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            return s.getsockname()[1]
+
+    port, web = free_port(), free_port()
+    viewer = ViewerClient.spawn(headless=True, port=port, hide_welcome_screen=True,
+                                executable_path=str(viewer_binary()))
+    try:
+        outputs = parse_outputs(f"file,grpc=rerun+http://127.0.0.1:{port}/proxy,web={web}", tmp_path)
+        rec, said = open_recording(outputs, recording_id="test-outputs")
+        assert any("web viewer" in line for line in said)
+        recorder = SwarmRecorder(scenario, rec, RecorderOptions(link_health=False))
+        recorder.start()
+        _, traj, _ = live_run
+        for state in list(world_states(traj))[::4]:
+            recorder.frame(state)
+        recorder.flush()
+        rec.flush(timeout_sec=10)
+        assert urllib.request.urlopen(f"http://127.0.0.1:{web + 1}/", timeout=10).status == 200
+        end = time.monotonic() + 20
+        timelines = {}
+        while time.monotonic() < end:
+            for r in viewer.get_state().recordings:
+                if r.store_id.endswith("test-outputs"):
+                    timelines = {t.name: t.end for t in r.timelines}
+            if timelines.get("sim_time") is not None and timelines["sim_time"] >= (DURATION - 0.1) * 1e9:
+                break
+            time.sleep(0.2)
+        assert timelines.get("sim_time", 0) >= (DURATION - 0.1) * 1e9, timelines
+        recorder.close()
+        assert style.FORMATION_ERROR in entities(tmp_path / "recording.rrd")
+    finally:
+        viewer.quit()
