@@ -254,3 +254,24 @@ def test_file_grpc_and_web_outputs_at_once(live_run, scenario, tmp_path):
         assert style.FORMATION_ERROR in entities(tmp_path / "recording.rrd")
     finally:
         viewer.quit()
+
+
+def test_moving_obstacles_move_in_the_recording(scenario, tmp_path):
+    from fxswarm.core import motion
+
+    moving = motion.ConstantVelocity((0.0, 0.0, 5.0), (0.5, 0.0, 0.0))
+    sc = dataclasses.replace(scenario, duration=1.0, obstacles=(moving, *scenario.obstacles[1:]))
+    sim = Simulation(sc)
+    rrd = tmp_path / "moving.rrd"
+    rec, _ = open_recording(Outputs(file=rrd), recording_id="test-moving")
+    recorder = SwarmRecorder(sc, rec, RecorderOptions(rate_hz=10.0))
+    recorder.start()
+    attach(sim.bus, recorder)
+    sim.run()
+    recorder.close()
+    traj = sim.trajectory()
+    series = read_series(rrd)[style.OBSTACLES]
+    k = _rows_at(traj["t"], series["t"])
+    centres = np.array(series["Ellipsoids3D:centers"])
+    np.testing.assert_allclose(centres, traj["obstacles"][k], atol=1e-4)
+    assert centres[-1, 0, 0] > centres[0, 0, 0] + 0.4  # it moved along x
