@@ -204,6 +204,9 @@ def test_options_from_scenario_logging_table(scenario):
     assert opts.rate_hz == 5.0 and opts.velocities and opts.trail_s == 3.0
     with pytest.raises(ValueError, match="rate_hz"):
         RecorderOptions.from_scenario(sc, rate_hz=0.0)
+    typo = dataclasses.replace(scenario, raw={**scenario.raw, "logging": {"rate": 5.0}})
+    with pytest.raises(ValueError, match=r"\[logging\] rate: unknown key"):
+        RecorderOptions.from_scenario(typo)
 
 
 @pytest.mark.slow

@@ -26,14 +26,14 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 import rerun as rr
 
 from fxswarm.core import bus as topics
-from fxswarm.core.messages import Clock, Estimate, LeaderState, Message, WorldState
+from fxswarm.core.messages import Estimate, LeaderState, Message, WorldState
 from fxswarm.core.metrics import estimate_errors, formation_errors
 from fxswarm.core.scenario import Scenario
 from fxswarm.logger import style
@@ -59,7 +59,11 @@ class RecorderOptions:
         """Defaults, then the scenario's ``[logging]`` table, then ``overrides`` (not None)."""
         known = set(cls.__dataclass_fields__)
         table = sc.raw.get("logging", {}) if isinstance(sc.raw, dict) else {}
-        values = {k: v for k, v in table.items() if k in known}
+        unknown = sorted(set(table) - known)
+        if unknown:
+            raise ValueError(f"{sc.source}: [logging] {unknown[0]}: unknown key (expected one of "
+                             f"{', '.join(sorted(known))})")
+        values = dict(table)
         values.update({k: v for k, v in overrides.items() if v is not None})
         opts = cls(**values)
         if not (opts.rate_hz > 0 and math.isfinite(opts.rate_hz)):
