@@ -92,7 +92,9 @@ def multi_process(duration: float, repeats: int) -> dict:
                 walls[mode].append(float(summary["wall_s"]))
                 if mode == "with":
                     logger_counters.append(summary.get("processes", {}).get("logger-0", {}).get("logger"))
+    cpu = [c.get("cpu_s") for c in logger_counters if c]
     return _result(walls, {"ticks": int(round(duration / 0.01)), "logger_counters": logger_counters,
+                           "logger_cpu_s_median": statistics.median(cpu) if cpu else None,
                            "note": "world's wall_s from summary.json; 8 processes on this machine"})
 
 

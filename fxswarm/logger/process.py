@@ -131,7 +131,8 @@ class LoggerProcess:
             self.recorder.close(timeout_s=10.0)
         finally:
             extra = {"logger": {**self.recorder.counters(), "inbox_dropped": self.inbox.dropped,
-                                "invalid": self.invalid, "outputs": self.args.rerun}}
+                                "invalid": self.invalid, "outputs": self.args.rerun,
+                                "cpu_s": round(time.process_time(), 3)}}  # what logging cost this machine
             self.proc.write_counters(extra)
             self.proc.close()
 
