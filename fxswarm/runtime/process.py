@@ -192,15 +192,20 @@ class RoleProcess:
             self.bus.counters.stale += 1
         out = self.node.handle(topic, msg)
         if out:
-            self.bus.publish_all(out)
+            self.bus.publish_all(self.in_send_order(out))
 
     def is_late(self, msg: Message) -> bool:
         """Lock-step: a message for a tick the receiver has already left (role-specific)."""
         return False
 
     def publish(self, out) -> None:
+        """Send one ``(topic, msg)`` or a list of them."""
         if out:
-            self.bus.publish_all([out] if isinstance(out[0], str) else out)
+            self.bus.publish_all([out] if isinstance(out[0], str) else self.in_send_order(out))
+
+    def in_send_order(self, out: list) -> list:
+        """The order to send a batch in (role-specific: what others wait for goes first)."""
+        return out
 
     # --- exit --------------------------------------------------------------------------------
 

@@ -24,6 +24,7 @@ import time
 
 import numpy as np
 
+from fxswarm.core.bus import WORLD_STATE
 from fxswarm.core.messages import Command, Message
 from fxswarm.core.metrics import summarise
 from fxswarm.core.scenario import Scenario
@@ -86,6 +87,10 @@ def build_node(scenario: Scenario, args: argparse.Namespace):
 class WorldProcess(RoleProcess):
     def is_late(self, msg: Message) -> bool:
         return isinstance(msg, Command) and msg.tick < self.core.tick
+
+    def in_send_order(self, out: list) -> list:
+        # Sensing first: the next tick waits on it; the state (for loggers) can follow.
+        return sorted(out, key=lambda o: o[0] == WORLD_STATE) if len(out) > 1 else out
 
 
 def wait_for_everyone(proc: RoleProcess, timeout: float) -> list[str]:
