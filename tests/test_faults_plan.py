@@ -34,7 +34,7 @@ def plan(table: dict, n: int = 6) -> FaultPlan:
     ({"partitions": [{"start": 3, "end": 2, "isolate": [1]}]}, "faults.partitions[0].end: expected an end after"),
     ({"partitions": [{"start": 1, "end": 2, "isolate": [9]}]}, "faults.partitions[0].isolate: expected a list of robot ids in 1..6"),
     ({"processes": [{"target": "agent:2", "kill": 1, "freeze": 2}]}, "faults.processes[0].kill: expected exactly one"),
-    ({"processes": [{"target": "agent:7", "kill": 1}]}, "faults.processes[0].target: expected 'world', 'leader' or"),
+    ({"processes": [{"target": "agent:7", "kill": 1}]}, "faults.processes[0].target: expected 'leader' or 'agent:<id>'"),
     ({"processes": [{"target": "agent:2", "kill": 3, "restart": 2}]}, "faults.processes[0].restart: expected a time after"),
     ({"processes": [{"target": "agent:2", "kill": 3, "thaw": 4}]}, "faults.processes[0].thaw: expected 'restart' with 'kill'"),
     ({"staleness": 0}, "faults.staleness: expected a number > 0"),

@@ -112,7 +112,7 @@ class ProcessFault:
     """Kill (SIGKILL) a process at ``at`` s and restart it at ``restart`` s (None: never),
     or freeze it (SIGSTOP) at ``at`` and thaw it (SIGCONT) at ``restart``."""
 
-    target: str  # "agent:<id>", "leader" or "world"
+    target: str  # "agent:<id>" or "leader"
     action: str  # "kill" | "freeze"
     at: float
     restart: float | None = None
@@ -324,10 +324,10 @@ def _robot_ids(f: _Fields, key: str, n: int) -> tuple[int, ...]:
 
 def _target(f: _Fields, n: int) -> str:
     target = f.string("target")
-    ok = target in ("world", "leader") or (
-        target.startswith("agent:") and target[6:].isdigit() and 1 <= int(target[6:]) <= n)
+    # Not the world: it is the simulation itself; killing it ends the run.
+    ok = target == "leader" or (target.startswith("agent:") and target[6:].isdigit() and 1 <= int(target[6:]) <= n)
     if not ok:
-        f.fail("target", f"'world', 'leader' or 'agent:<id>' with id in 1..{n}", target)
+        f.fail("target", f"'leader' or 'agent:<id>' with id in 1..{n}", target)
     return target
 
 
