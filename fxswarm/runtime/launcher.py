@@ -450,7 +450,9 @@ def main(args: argparse.Namespace) -> int:
     swarm = Swarm(args.config, out, clock=args.clock, speed=args.speed, swarm=args.swarm, port=args.port,
                   logger=not args.no_logger, tick_timeout=args.tick_timeout, lease_ms=args.lease_ms, scenario=sc,
                   faults=tuple(args.fault or ()))
-    signal.signal(signal.SIGTERM, _raise_interrupt)  # a SIGTERM to the launcher stops the run like Ctrl-C
+    # SIGINT and SIGTERM both stop the run cleanly, even where SIGINT came in ignored (a background job).
+    signal.signal(signal.SIGTERM, _raise_interrupt)
+    signal.signal(signal.SIGINT, _raise_interrupt)
     say = (lambda *a: None) if args.quiet else (lambda text: print(text, file=sys.stderr))
     code = 0
     agent_deaths: list[str] = []
@@ -495,11 +497,11 @@ def main(args: argparse.Namespace) -> int:
         code = 130
         say("\nfxswarm run: interrupted")
     finally:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the clean-up short
+        for sig in (signal.SIGINT, signal.SIGTERM):  # a second Ctrl-C must not cut the clean-up short
+            signal.signal(sig, signal.SIG_IGN)
         finished = "world" in swarm.children and swarm.children["world"].popen is not None \
             and swarm.children["world"].popen.returncode == 0
         how = swarm.stop(grace=3.0 if finished else 0.0)
-        signal.signal(signal.SIGINT, signal.default_int_handler)
         stopped = {k: v for k, v in how.items() if v != "exited"}
         if stopped and (code or not args.quiet):
             say("fxswarm run: stopped " + ", ".join(f"{k} ({v})" for k, v in stopped.items()))
