@@ -239,13 +239,15 @@ def run_event_loop(proc: RoleProcess, on_idle=None, step: float = 0.1) -> None:
         proc.exit_with_world()
 
 
-def run_periodic_loop(proc: RoleProcess, period_wall: float, act, act_early=None) -> None:
+def run_periodic_loop(proc: RoleProcess, period_wall: float, act, act_early=None, patience: float = 1.5) -> None:
     """Real time: call ``act()`` every ``period_wall`` s, delivering messages in between.
 
     Zero-order hold: ``act`` works on whatever the node holds. ``act_early()``
     (checked after each batch of messages) lets fresh data trigger the act at
-    once (e.g. an agent's new sensing); the period then restarts from there.
-    A late loop does not burst to catch up: it acts once and goes on.
+    once (e.g. an agent's new sensing); the timer then waits ``patience``
+    periods, so it only fires when fresh data is late (acting on the timer
+    just before the data arrives would do the work twice). A late loop does
+    not burst to catch up: it acts once and goes on.
     """
     due = time.monotonic()
     while not proc.stopping:
@@ -253,8 +255,11 @@ def run_periodic_loop(proc: RoleProcess, period_wall: float, act, act_early=None
         proc.bus.poll(min(left, 0.1) if left > 0 else 0)
         proc.publish(getattr(proc.node, "poll", lambda: [])())  # delayed messages now due (faults)
         now = time.monotonic()
-        if now >= due or (act_early is not None and act_early()):
+        if act_early is not None and act_early():
             act()
-            due = due + period_wall if 0 <= now - due < period_wall else now + period_wall
+            due = now + patience * period_wall
+        elif now >= due:
+            act()
+            due = due + period_wall if now - due < period_wall else now + period_wall
         proc.check_parent()
         proc.exit_with_world()
