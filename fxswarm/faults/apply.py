@@ -96,8 +96,9 @@ def process_counters(node) -> dict:
     return {"links": {k: dict(v.__dict__) for k, v in node.links.items()}} if node is not None else {}
 
 
-def merge_process_links(summary: dict) -> None:
-    """Launcher: sum the processes' per-link counts into ``summary["faults"]["links"]``."""
+def merge_process_links(summary: dict, schedule=None) -> None:
+    """Launcher: sum the processes' per-link counts into ``summary["faults"]["links"]``, and
+    list the process faults it sent (``faults.process_events``) from its ``schedule``."""
     merged: dict[str, dict[str, int]] = {}
     for counters in (summary.get("processes") or {}).values():
         for key, c in (counters.get("links") or {}).items():
@@ -106,6 +107,8 @@ def merge_process_links(summary: dict) -> None:
                 m[name] += int(c.get(name, 0))
     if "faults" in summary or merged:
         summary.setdefault("faults", {})["links"] = dict(sorted(merged.items()))
+    if schedule is not None and schedule.log:
+        summary.setdefault("faults", {})["process_events"] = list(schedule.log)
 
 
 def world_process_summary(scenario: Scenario, args, traj: dict[str, np.ndarray], world) -> dict:

@@ -87,6 +87,7 @@ class ProcessSchedule:
 
     faults: tuple[ProcessFault, ...]
     _done: set = field(default_factory=set)
+    log: list = field(default_factory=list)  # what run() sent: {action, target, t_s}, for the summary
 
     def due(self, t: float) -> list[tuple[str, str]]:
         out = []
@@ -113,8 +114,10 @@ class ProcessSchedule:
         """
         if not self.faults:
             return []
-        done = self.due(swarm.sim_time())
+        now = swarm.sim_time()
+        done = self.due(now)
         for action, target in done:
+            self.log.append({"action": action, "target": target, "t_s": round(now, 6)})
             name = target.replace(":", "-")
             if name not in swarm.children:
                 continue

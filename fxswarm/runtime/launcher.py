@@ -394,7 +394,7 @@ class Swarm:
             return None
         summary = json.loads(path.read_text())
         summary["processes"] = self.process_counters()
-        merge_process_links(summary)
+        merge_process_links(summary, getattr(self, "_process_faults", None))
         summary.update(extra or {})
         write_summary(self.out, summary)
         return summary
