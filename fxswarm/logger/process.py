@@ -6,7 +6,10 @@ which only drop the raw payload and its arrival time into a bounded ring
 (:class:`~fxswarm.logger.inbox.Inbox`): the bus never waits on the logger,
 and when the logger falls behind it loses the oldest messages and counts
 them. The main thread decodes, validates (as the Zenoh bus does) and hands
-messages to the :class:`~fxswarm.logger.recorder.SwarmRecorder`.
+messages to the :class:`~fxswarm.logger.recorder.SwarmRecorder`: it reads
+only the header of estimates and leader states (all link health needs) and
+of the world states the log rate skips (:mod:`.peek`), and fully decodes
+the world states it draws.
 
 It says it is alive (``alive/logger/0``) only once it is subscribed and the
 recording is open, so a launcher that waits for it loses no tick. It ends
@@ -22,8 +25,10 @@ import time
 import uuid
 from pathlib import Path
 
+from fxswarm.core import bus as topics
 from fxswarm.core.messages import WireError, decode
 from fxswarm.logger.inbox import Inbox
+from fxswarm.logger.peek import Header, peek_header
 from fxswarm.logger.recorder import RECORDER_TOPICS, RecorderOptions, SwarmRecorder
 from fxswarm.logger.sinks import OutputError, open_recording, parse_outputs
 from fxswarm.runtime.process import RoleProcess, add_process_arguments
@@ -32,6 +37,16 @@ from fxswarm.runtime.zenoh_bus import check_sender
 
 DRAIN_BATCH = 2000  # messages handled between two looks at liveliness and signals
 SETTLE_S = 0.3  # after the world leaves: wait this long for samples still in flight
+
+
+def _belongs(topic: str, h: Header) -> bool:
+    """The header is the kind, role and robot its key promises (as ``zenoh_bus.check_sender``)."""
+    if topic == topics.WORLD_STATE:
+        return h.kind == "state" and h.role == "world"
+    if topic == topics.LEADER_STATE:
+        return h.kind == "leader" and h.role == "leader"
+    parts = topic.split("/")  # agent/<i>/estimate
+    return h.kind == "estimate" and h.role == "agent" and len(parts) == 3 and parts[1] == str(h.sender)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -87,18 +102,29 @@ class LoggerProcess:
         bus.declare_alive("logger", 0)
 
     def drain(self, limit: int | None = DRAIN_BATCH) -> int:
+        """Handle queued messages: headers only, except the world states that will be drawn."""
         n = 0
-        take = self.recorder.take
+        recorder = self.recorder
+        heard = recorder.links.heard
         for topic, payload, wall in self.inbox.drain(limit):
-            try:
-                msg = decode(payload)
-                check_sender(topic, msg)
-            except WireError:
+            h = peek_header(payload)
+            if h is None or not _belongs(topic, h):
                 self.invalid += 1
                 continue
-            take(topic, msg, wall)
             n += 1
-        self.recorder.dropped = self.inbox.dropped
+            if h.kind != "state":
+                heard(h.sender if h.kind == "estimate" else 0, h.seq, h.tick, h.t)
+            elif not recorder.due(h.t):
+                recorder.skipped += 1
+            else:
+                try:
+                    msg = decode(payload)
+                    check_sender(topic, msg)
+                except WireError:
+                    self.invalid += 1
+                    continue
+                recorder.take(topic, msg, wall)
+        recorder.dropped = self.inbox.dropped
         counters = self.proc.bus.counters  # the same counters every process reports in summary.json
         counters.received += n
         counters.invalid = self.invalid
