@@ -73,11 +73,11 @@ class LoggerProcess:
         try:
             self.outputs = parse_outputs(args.rerun, out)
             self.options = RecorderOptions.from_scenario(self.sc, rate_hz=args.rate, velocities=args.velocities)
+            self.inbox = Inbox(args.inbox)
         except (OutputError, ValueError) as exc:
             print(f"fxswarm logger: {exc}", file=sys.stderr)
             raise SystemExit(2) from None
         self.proc = RoleProcess("logger", 0, self.sc, args)
-        self.inbox = Inbox(args.inbox)
         self.invalid = 0
         self._subscribers = []  # kept referenced: a dropped subscriber stops delivering
         recording_id = args.recording_id or f"{self.sc.name}-{self.proc.bus.swarm}-{uuid.uuid4().hex[:8]}"
