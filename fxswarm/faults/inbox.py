@@ -23,11 +23,11 @@ from __future__ import annotations
 
 import heapq
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Callable
 
 from fxswarm.core import bus as topics
-from fxswarm.core.messages import KINDS, Command, Estimate, LeaderState, Message, Sense
+from fxswarm.core.messages import KINDS, Message, Sense
 from fxswarm.faults.plan import FAULTABLE_KINDS, FaultPlan
 
 KIND_OF: dict[type, str] = {cls: name for name, cls in KINDS.items()}
@@ -280,5 +280,4 @@ def wrap(node, role: str, ident: int | str, plan: FaultPlan, dt: float, lockstep
     return FaultyInbox(node, receiver, plan, dt, lockstep, clock)
 
 
-__all__ = ["FaultyInbox", "ReplayedSense", "LinkCounts", "endpoint", "link_counts", "wrap",
-           "Command", "Estimate", "LeaderState"]
+__all__ = ["FaultyInbox", "ReplayedSense", "LinkCounts", "endpoint", "link_counts", "wrap"]
