@@ -16,7 +16,8 @@ A lost sensing message still starts the tick (the world's clock reached the
 robot) but carries the robot's last sensed content, marked as a replay.
 
 Real time: delays are real time; held messages are released by
-:meth:`FaultyInbox.poll`, which the process loop calls every iteration.
+:meth:`FaultyInbox.poll`, which the process loop calls every iteration;
+fates are indexed by the sender's sequence number instead of its tick.
 """
 
 from __future__ import annotations
@@ -155,7 +156,9 @@ class FaultyInbox:
         if kind not in FAULTABLE_KINDS:
             return self.node.handle(topic, msg)
         sender = endpoint(msg)
-        fate = self._fate(sender, kind, msg.tick, msg.t)
+        # Lock-step: fates by tick (known in advance). Real time: by the sender's sequence
+        # number, since a real-time sender may send several messages in one tick.
+        fate = self._fate(sender, kind, msg.tick if self.lockstep else msg.seq, msg.t)
         counts = self._count(sender, kind)
         if fate.lost:
             counts.dropped += 1
