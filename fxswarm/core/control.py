@@ -355,11 +355,13 @@ def estimator_step_semi_implicit(
             continue
         target = jump if g_star > 0.0 else -jump
         width = max(abs(xk - xs), jump, 1e-12 * max(1.0, abs(xs)))
-        while True:  # bracket on the root's side of x*; G is unbounded, so this ends
+        for _ in range(2100):  # bracket on the root's side of x*; G is unbounded, so this ends
             far = xs - width if g_star > 0.0 else xs + width
             if (g(far)[0] - target) * (g_star - target) <= 0.0:
                 break
             width *= 2.0
+        else:
+            raise FloatingPointError(f"semi-implicit estimator step: no root bracketed on axis {c} (x_k = {xk!r})")
         lo, hi = (far, xs) if g_star > 0.0 else (xs, far)
         explicit = xk - dt * (_estimator_power_sum(xk, ys, ws, gains)[0] + target / dt)
         start = explicit if lo < explicit < hi else 0.5 * (lo + hi)
