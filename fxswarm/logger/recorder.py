@@ -363,10 +363,18 @@ def attach(bus, recorder: SwarmRecorder) -> None:
     every message, which would cost the whole swarm, not just the logger.
     """
     clock = recorder.wall_clock
+    heard = recorder.links.heard
 
-    def deliver(topic: str, msg: Message) -> None:
+    def on_state(topic: str, msg: Message) -> None:
         recorder.take(topic, msg, clock())
 
-    exact = [topics.WORLD_STATE, topics.LEADER_STATE] + [topics.estimate_topic(r.id) for r in recorder.sc.robots]
-    for topic in exact:
-        bus.subscribe(topic, deliver)
+    def on_estimate(topic: str, msg: Message) -> None:  # every robot, every tick: keep it short
+        heard(msg.robot, msg.seq, msg.tick, msg.t)
+
+    def on_leader(topic: str, msg: Message) -> None:
+        heard(0, msg.seq, msg.tick, msg.t)
+
+    bus.subscribe(topics.WORLD_STATE, on_state)
+    bus.subscribe(topics.LEADER_STATE, on_leader)
+    for r in recorder.sc.robots:
+        bus.subscribe(topics.estimate_topic(r.id), on_estimate)
