@@ -152,7 +152,8 @@ def realtime(config: Path, folder: Path, duration: float) -> dict:
     s = r["summary"]
     rss = [v for v in r["rss"].values() if v is not None]
     return {"scenario": config.name, "agents": s["robots"], "rate_hz": 1 / s["dt"], "duration_s": duration,
-            "sense_to_command": s["sense_to_command"], "overruns": s["overruns"],
+            "sense_to_command": s["sense_to_command"], "late_ticks": s["late_ticks"], "held_ticks": s["held_ticks"],
+            "achieved_speed": s["achieved_speed"],
             "stale": {k: v["stale"] for k, v in s["processes"].items()},
             "rss_mb_per_agent": {"max": max(rss) if rss else None, "mean": float(np.mean(rss)) if rss else None},
             "load_avg": load()}

@@ -76,6 +76,8 @@ def main(args: argparse.Namespace) -> int:
                 if agent.sense is None or not proc.clock.known:
                     return
                 now = proc.clock.now()
+                if last is not None and now <= last:
+                    return  # the world's time has not moved: nothing to integrate
                 dt = sc.dt if last is None else now - last
                 last = now
                 proc.publish(agent.act(dt))

@@ -52,11 +52,13 @@ def main(args: argparse.Namespace) -> int:
         else:
             leader: LeaderNode = proc.core
             beat = 0
+            said = None
 
             def act() -> None:
-                nonlocal beat
-                if proc.clock.known:
-                    proc.publish(leader.act(beat, proc.clock.now()))
+                nonlocal beat, said
+                if proc.clock.known and proc.clock.now() != said:  # p0 only moves with the world's time
+                    said = proc.clock.now()
+                    proc.publish(leader.act(beat, said))
                     beat += 1
 
             run_periodic_loop(proc, sc.dt / args.speed, act)

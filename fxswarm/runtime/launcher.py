@@ -418,6 +418,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tick-timeout", type=float, default=1.0, metavar="S",
                    help="lock-step: a tick waits at most S s for its commands (default 1)")
     p.add_argument("--lease-ms", type=int, default=None, help="zenoh lease (how fast a frozen process is seen gone)")
+    p.add_argument("--max-lag", type=int, default=None, metavar="TICKS",
+                   help="real time: the world holds its clock while a robot is more than TICKS ticks behind "
+                        "(default 10; 0: never)")
     p.add_argument("--no-logger", action="store_true", help="do not start the Rerun logger process")
     p.add_argument("--fail-fast", action="store_true", help="end the run when any agent dies")
     p.add_argument("--start-timeout", type=float, default=60.0, help="seconds to wait for every process to be up")
@@ -449,7 +452,8 @@ def main(args: argparse.Namespace) -> int:
     out = Path(args.out or f"runs/{sc.name}")
     swarm = Swarm(args.config, out, clock=args.clock, speed=args.speed, swarm=args.swarm, port=args.port,
                   logger=not args.no_logger, tick_timeout=args.tick_timeout, lease_ms=args.lease_ms, scenario=sc,
-                  faults=tuple(args.fault or ()))
+                  faults=tuple(args.fault or ()),
+                  world_args=("--max-lag", str(args.max_lag)) if args.max_lag is not None else ())
     # SIGINT and SIGTERM both stop the run cleanly, even where SIGINT came in ignored (a background job).
     signal.signal(signal.SIGTERM, _raise_interrupt)
     signal.signal(signal.SIGINT, _raise_interrupt)

@@ -68,45 +68,39 @@ def unwrap(node):
 
 
 class SimClock:
-    """Simulation time in a real-time process: ``(wall - start) * speed``.
+    """Simulation time in a real-time process: the world's, as last heard.
 
-    The world starts the clock; the others learn its start from the world's
-    time-stamped messages: a message for time ``t`` leaves no earlier than
-    ``start + t / speed`` and arrives later still, so each one bounds the start
-    from above by ``received - t / speed``; the smallest bound (the message
-    that travelled fastest) is kept. No shared wall clock is needed between
-    machines, and a late message never moves the clock back.
+    The world's time is the simulation's: it advances one ``dt`` per tick,
+    paced at ``dt / speed`` wall seconds while the machine keeps up, and
+    slower when it cannot. Every other process takes the latest time stamp of
+    the world's messages as its own time (no extrapolation: a process that
+    ran its own clock between messages would run ahead of a world that slows
+    down, and a leader ahead of the world pulls every estimate ahead of it).
+    So an agent acting twice on one sensing integrates ``dt = 0`` the second
+    time, and one that missed a tick integrates both. No wall clock is shared.
     """
 
     def __init__(self, speed: float) -> None:
         if not speed > 0:
             raise ValueError(f"--speed: expected a positive number, got {speed}")
         self.speed = speed
-        self.start: float | None = None
-        self._last = float("-inf")
+        self.t: float | None = None
 
     def start_now(self) -> None:
-        self.start = time.monotonic()
+        self.t = 0.0
 
-    def observe(self, t: float, received: float) -> None:
-        bound = received - t / self.speed
-        if self.start is None or bound < self.start:
-            self.start = bound
+    def observe(self, t: float, received: float | None = None) -> None:
+        if self.t is None or t > self.t:
+            self.t = t
 
     @property
     def known(self) -> bool:
-        return self.start is not None
+        return self.t is not None
 
     def now(self) -> float:
         """Simulation time, s; never decreases."""
-        assert self.start is not None, "simulation time before the world started"
-        self._last = max(self._last, (time.monotonic() - self.start) * self.speed)
-        return self._last
-
-    def wall_of(self, t: float) -> float:
-        """The monotonic wall time at which simulation time ``t`` falls."""
-        assert self.start is not None
-        return self.start + t / self.speed
+        assert self.t is not None, "simulation time before the world started"
+        return self.t
 
 
 class RoleProcess:

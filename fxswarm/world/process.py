@@ -39,6 +39,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_process_arguments(p)
     p.add_argument("--tick-timeout", type=float, default=1.0, metavar="S",
                    help="lock-step: close a tick after S wall seconds without every command (default 1)")
+    p.add_argument("--max-lag", type=int, default=10, metavar="TICKS",
+                   help="real time: hold the clock while a live robot's latest command is more than TICKS "
+                        "ticks old (robots share this machine's CPUs; in the field each has its own), at most "
+                        "--tick-timeout s at a time; 0: never hold (default 10)")
     p.add_argument("--wait-timeout", type=float, default=120.0, metavar="S",
                    help="give up (exit 3) if the leader and all agents are not up within S s (default 120)")
 
@@ -55,6 +59,7 @@ class RealTimeInbox:
         self.sent_at: dict[int, float] = {}
         self.answered: set[tuple[int, int]] = set()
         self.latencies: list[float] = []  # s
+        self.last_tick: dict[int, int] = {}  # robot -> the latest tick it has answered
 
     def subscriptions(self) -> list[str]:
         return self.inner.subscriptions()
@@ -62,6 +67,8 @@ class RealTimeInbox:
     def handle(self, topic: str, msg: Message) -> list:
         if isinstance(msg, Command):
             self.inner.take_command(msg)
+            if msg.tick > self.last_tick.get(msg.robot, -1):
+                self.last_tick[msg.robot] = msg.tick
             sent = self.sent_at.get(msg.tick)
             if sent is not None and (msg.robot, msg.tick) not in self.answered:
                 self.answered.add((msg.robot, msg.tick))
@@ -127,40 +134,61 @@ def run_lockstep(proc: RoleProcess, tick_timeout: float) -> None:
         proc.check_parent()
 
 
-def run_realtime(proc: RoleProcess, inbox: RealTimeInbox) -> dict:
-    """Tick ``k`` is due at wall ``start + k*dt/speed``; integrate the held commands at each.
+def run_realtime(proc: RoleProcess, inbox: RealTimeInbox, max_lag: int, hold_limit: float) -> dict:
+    """Tick every ``dt / speed`` wall seconds, integrating the latest commands held.
 
-    A late loop (a loaded machine) catches up by integrating the ticks it
-    missed back to back on the held commands and sends sensing for the latest
-    only, so simulation time stays tied to wall time (other processes derive
-    their clock from it); the ticks so skipped are counted as ``overruns``.
+    A tick that starts more than a period late is counted in ``late_ticks``
+    and the schedule slips: the simulation runs slower than asked (reported
+    as ``achieved_speed``) instead of integrating missed ticks on stale
+    commands, which a delayed fixed-time law does not survive. Likewise the
+    clock holds (``held_ticks``) while a live robot has not answered for more
+    than ``max_lag`` ticks: on a shared machine a robot starved of CPU is an
+    artefact (in the field each robot has its own), so the world waits for
+    it, up to ``hold_limit`` wall seconds at a time.
     """
     world: WorldNode = proc.core
     sc = proc.sc
     period = sc.dt / proc.clock.speed
+    start = time.monotonic()
     proc.clock.start_now()
     proc.publish(world.start())
     inbox.sent(world.tick)
-    overruns = 0
+    late = held = 0
+    due = start + period
+    holding_since: float | None = None
+
+    def lagging() -> bool:
+        if max_lag <= 0:
+            return False
+        oldest = world.tick - max_lag
+        return any(inbox.last_tick.get(r.id, -1) < oldest for r in sc.robots if f"agent/{r.id}" in proc.alive)
 
     def tick() -> None:
-        nonlocal overruns
-        due = int(proc.clock.now() / sc.dt + 1e-9)  # the tick wall time has reached
-        out = world.advance(sc.dt)
-        while world.tick < due and not world.done:
-            overruns += 1
-            out = world.advance(sc.dt)
-        proc.publish(out)
+        nonlocal late, held, due, holding_since
+        now = time.monotonic()
+        if lagging():
+            holding_since = holding_since if holding_since is not None else now
+            if now - holding_since < hold_limit:
+                held += 1
+                due = now + period
+                return
+        holding_since = None
+        if now > due + period:
+            late += 1
+        due = max(due + period, now)
+        proc.publish(world.advance(sc.dt))
+        proc.clock.observe(world.t)
         inbox.sent(world.tick)
         if world.done:
             proc.stop("done")
 
     # run_periodic_loop acts at once when it starts: enter it when tick 1 is due.
-    due_first = proc.clock.wall_of(sc.dt)
-    while time.monotonic() < due_first and not proc.stopping:
-        proc.bus.poll(max(0.0, due_first - time.monotonic()))
+    while time.monotonic() < due and not proc.stopping:
+        proc.bus.poll(max(0.0, due - time.monotonic()))
     run_periodic_loop(proc, period, tick)
-    return {"overruns": overruns}
+    wall = time.monotonic() - start
+    return {"late_ticks": late, "held_ticks": held,
+            "achieved_speed": world.tick * sc.dt / wall if wall > 0 else None}
 
 
 def latency_stats(samples: list[float]) -> dict:
@@ -196,7 +224,7 @@ def main(args: argparse.Namespace) -> int:
             run_lockstep(proc, args.tick_timeout)
         else:
             inbox = unwrap_inbox(node)
-            extra.update(run_realtime(proc, inbox))
+            extra.update(run_realtime(proc, inbox, args.max_lag, args.tick_timeout))
             extra["sense_to_command"] = latency_stats(inbox.latencies)
         world: WorldNode = proc.core
         wall = time.perf_counter() - started
@@ -209,7 +237,7 @@ def main(args: argparse.Namespace) -> int:
                            complete=world.done, missed_ticks=world.missed_ticks,
                            missed_ticks_per_robot={str(r.id): int(m) for r, m in zip(sc.robots, world.misses)})
             summary.update(world_process_summary(sc, args, world.trajectory(), world))  # faults, recoveries
-            for key in ("sense_to_command", "overruns"):
+            for key in ("sense_to_command", "late_ticks", "held_ticks", "achieved_speed"):
                 if key in extra:
                     summary[key] = extra[key]
             write_run(args.out, summary, world.trajectory())
