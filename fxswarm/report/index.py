@@ -16,6 +16,7 @@ _NUMBERS = [
     ("estimate_error_final_m", "final max estimate error", "{:.4f} m"),
     ("min_obstacle_distance_m", "closest approach to an obstacle", "{:.3f} m"),
     ("min_object_distance_m", "closest approach to any object", "{:.3f} m"),
+    ("missed_ticks", "lock-step ticks closed by timeout", "{}"),
 ]
 
 _CAPTIONS = {
@@ -51,6 +52,10 @@ def write_index(run: Path, summary: dict, figures: list[Path], snapshots: list[P
     for name, value in bounds.items():
         note = " (as printed in the paper; suspect, see SPEC section 6)" if name == "estimator" else ""
         lines.append(f"| fixed-time bound, {name} | {_fmt(value, '{:.2f} s')}{note} |")
+    logger = (summary.get("processes") or {}).get("logger-0", {}).get("logger")
+    if logger:
+        lines.append(f"| logger: frames recorded, messages dropped | {logger.get('frames')}, "
+                     f"{logger.get('dropped')} |")
     episodes = summary.get("avoidance_episodes") or []
     lines.append(f"| avoidance episodes | {len(episodes)} |")
     lines.append("")
