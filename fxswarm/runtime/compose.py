@@ -19,6 +19,7 @@ file beside the compose file) when it starts the swarm:
 ``FXSWARM_SWARM``          swarm name (key prefix; default: the scenario's name)
 ``FXSWARM_CLOCK``          ``lockstep`` (default) or ``realtime``
 ``FXSWARM_SPEED``          real time: simulation seconds per wall second (1)
+``FXSWARM_TICK_TIMEOUT``   lock-step: seconds the world waits for a live agent's command (5)
 ``FXSWARM_FAULTS``         fault specs, ``;``-separated, as ``--fault`` takes them
                            (e.g. ``agent:*->agent:4 loss=0.2; partition 5-8 isolate=3``)
 ``FXSWARM_RUN``            run folder under ``./runs`` (default ``<scenario>-compose``)
@@ -121,7 +122,9 @@ def services(scenario: Scenario, scenario_path: str, context: str) -> dict:
     for robot in scenario.robots:
         out[f"agent-{robot.id}"] = role("agent", robot.id, ["--id", str(robot.id)])
     # The world starts the clock: after the logger is recording; it waits for leader and agents itself.
-    out["world"] = role("world", 0, depends={"router": {"condition": "service_started"},
+    # A lock-step tick waits this long for a live agent's command (a dead one is not waited for:
+    # liveliness says it is gone): long, since a loaded host stalls containers for a second or more.
+    out["world"] = role("world", 0, ["--tick-timeout", var("FXSWARM_TICK_TIMEOUT", "5")], depends={"router": {"condition": "service_started"},
                                              "logger": {"condition": "service_healthy"}})
     return {"services": out}
 
