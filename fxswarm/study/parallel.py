@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
+
+
+def _apply(job: tuple[Callable[..., dict], tuple]) -> dict:
+    fn, case = job
+    return fn(*case)
 
 
 def parallel_map(fn: Callable[..., dict], cases: Sequence[tuple], workers: int,
@@ -12,9 +16,10 @@ def parallel_map(fn: Callable[..., dict], cases: Sequence[tuple], workers: int,
     """``[fn(*case) for case in cases]`` on ``workers`` spawned processes, in completion order.
 
     ``fn`` must be importable at module level (spawned workers re-import it). Spawn, not
-    fork: a fork would copy whatever sessions or threads the parent holds. With
-    ``workers <= 1`` it runs here, in order. ``progress(result, done, total)`` is called
-    after each case.
+    fork: a fork would copy whatever sessions or threads the parent holds. The pool is
+    terminated on the way out, so Ctrl-C or an exception in any case stops every worker
+    at once. With ``workers <= 1`` it runs here, in order. ``progress(result, done,
+    total)`` is called after each case.
     """
     results: list[dict] = []
     if workers <= 1:
@@ -23,10 +28,9 @@ def parallel_map(fn: Callable[..., dict], cases: Sequence[tuple], workers: int,
             if progress:
                 progress(results[-1], len(results), len(cases))
         return results
-    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
-        futures = [pool.submit(fn, *case) for case in cases]
-        for fut in as_completed(futures):
-            results.append(fut.result())
+    with get_context("spawn").Pool(min(workers, len(cases)) or 1) as pool:  # __exit__ terminates
+        for result in pool.imap_unordered(_apply, [(fn, case) for case in cases]):
+            results.append(result)
             if progress:
-                progress(results[-1], len(results), len(cases))
+                progress(result, len(results), len(cases))
     return results

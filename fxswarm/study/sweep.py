@@ -33,6 +33,7 @@ import argparse
 import json
 import math
 import os
+import signal
 import sys
 import time
 import warnings
@@ -303,6 +304,7 @@ def main(args: argparse.Namespace) -> int:
                   f"({row['duration_s']:g} s simulated in {row['wall_s']:.1f} s)", file=sys.stderr)
 
     start = time.perf_counter()
+    signal.signal(signal.SIGTERM, _interrupted)  # SIGTERM stops the workers too, like Ctrl-C
     rows = run_sweep(cases, args.workers, progress)
     settings = {
         "scales": scales, "variants": variants, "dt": args.dt or base.dt,
@@ -329,6 +331,10 @@ def write_figure(out: Path, rows: list[dict]) -> Path | None:
     except ImportError:  # the report is another package's; the JSON stands alone
         return None
     return settling_vs_initial_error(sweep_rows({"rows": rows}), out / SETTLING)
+
+
+def _interrupted(signum, frame) -> None:
+    raise KeyboardInterrupt
 
 
 def _fmt(x: float | None) -> str:
