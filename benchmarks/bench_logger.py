@@ -60,7 +60,8 @@ def in_process(duration: float, repeats: int, rate_hz: float) -> dict:
     return _result(walls, {"ticks": sc.ticks, "frames_logged": frames, "rate_hz": rate_hz,
                            "cpu_s_without_median": cpu["wall_s_without_median"],
                            "cpu_s_with_median": cpu["wall_s_with_median"],
-                           "cpu_slowdown": cpu["slowdown"], "cpu_target_met": cpu["target_met"],
+                           "cpu_slowdown": cpu["slowdown"], "cpu_slowdown_best": cpu["slowdown_best"],
+                           "cpu_target_met": cpu["target_met"],
                            "note": "recorder on the simulation's thread, file sink; includes opening and closing "
                                    "the .rrd; cpu_s = CPU time of the whole process (all threads, incl. Rerun's "
                                    "writer), the steadier figure on a shared machine"})
@@ -92,16 +93,21 @@ def multi_process(duration: float, repeats: int) -> dict:
                 walls[mode].append(float(summary["wall_s"]))
                 if mode == "with":
                     logger_counters.append(summary.get("processes", {}).get("logger-0", {}).get("logger"))
-    cpu = [c.get("cpu_s") for c in logger_counters if c]
+    cpu = [c.get("cpu_s_running") for c in logger_counters if c and c.get("cpu_s_running") is not None]
     return _result(walls, {"ticks": int(round(duration / 0.01)), "logger_counters": logger_counters,
-                           "logger_cpu_s_median": statistics.median(cpu) if cpu else None,
+                           "logger_cpu_s_running_median": statistics.median(cpu) if cpu else None,
                            "note": "world's wall_s from summary.json; 8 processes on this machine"})
 
 
 def _result(walls: dict[str, list[float]], extra: dict) -> dict:
     without, with_ = statistics.median(walls["without"]), statistics.median(walls["with"])
     slowdown = with_ / without - 1.0
+    # Best of N: on a shared machine other work only ever adds time, so the fastest run is the
+    # closest to the intrinsic cost; the median is reported beside it.
+    best = min(walls["with"]) / min(walls["without"]) - 1.0
     return {"wall_s_without_median": round(without, 3), "wall_s_with_median": round(with_, 3),
+            "wall_s_without_best": round(min(walls["without"]), 3), "wall_s_with_best": round(min(walls["with"]), 3),
+            "slowdown_best": round(best, 4),
             "wall_s_without_all": [round(w, 3) for w in walls["without"]],
             "wall_s_with_all": [round(w, 3) for w in walls["with"]],
             "slowdown": round(slowdown, 4), "target_met": slowdown < 0.10, **extra}

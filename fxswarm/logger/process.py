@@ -80,6 +80,7 @@ class LoggerProcess:
         self.proc = RoleProcess("logger", 0, self.sc, args)
         self.invalid = 0
         self._subscribers = []  # kept referenced: a dropped subscriber stops delivering
+        self._cpu_at_start = time.process_time()
         recording_id = args.recording_id or f"{self.sc.name}-{self.proc.bus.swarm}-{uuid.uuid4().hex[:8]}"
         self.rec, said = open_recording(self.outputs, recording_id)
         for line in said:
@@ -99,6 +100,7 @@ class LoggerProcess:
         for pattern in RECORDER_TOPICS:
             self._subscribers.append(bus.session.declare_subscriber(f"{bus.root}/{pattern}", on_sample))
         self.proc.watch(["world/0"])
+        self._cpu_at_start = time.process_time()  # start-up (imports, session) is not logging
         bus.declare_alive("logger", 0)
 
     def drain(self, limit: int | None = DRAIN_BATCH) -> int:
@@ -158,7 +160,8 @@ class LoggerProcess:
         finally:
             extra = {"logger": {**self.recorder.counters(), "inbox_dropped": self.inbox.dropped,
                                 "invalid": self.invalid, "outputs": self.args.rerun,
-                                "cpu_s": round(time.process_time(), 3)}}  # what logging cost this machine
+                                "cpu_s": round(time.process_time(), 3),  # what logging cost this machine
+                                "cpu_s_running": round(time.process_time() - self._cpu_at_start, 3)}}
             self.proc.write_counters(extra)
             self.proc.close()
 
