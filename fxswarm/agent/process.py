@@ -6,10 +6,11 @@ pinned, the leader (the node's ``subscriptions()``): locality, as in the paper.
 Lock-step: event-driven on its inbox (the node answers ``Sense(k)`` with its
 estimate and, once every neighbour's estimate for ``k`` is in, its command).
 A neighbour (or the leader) whose process is gone is not waited for: the
-robot acts on what it last heard from it. Real time: it acts every control
-period (``dt / speed`` wall s) or at once on fresh sensing, on the latest
-data held, with ``dt`` measured in simulation time. Exits when the world,
-once seen, is gone, or on SIGINT/SIGTERM.
+robot acts on what it last heard from it. Real time: it acts at once on
+fresh sensing, and otherwise on its own beat (every 1.5 control periods,
+``dt / speed`` wall s each), on the latest data held (zero-order hold),
+integrating ``dt`` = the world's time elapsed since its last act. Exits when
+the world, once seen, is gone, or on SIGINT/SIGTERM.
 """
 
 from __future__ import annotations
