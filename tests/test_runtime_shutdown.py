@@ -86,16 +86,17 @@ def test_ctrl_c_stops_every_process_within_5_s_and_says_what_it_stopped(tmp_path
 
 
 @pytest.mark.zenoh
-def test_world_death_ends_the_run_non_zero_naming_it(tmp_path):
+@pytest.mark.parametrize("role", ["world", "leader"])
+def test_world_or_leader_death_ends_the_run_non_zero_naming_it(tmp_path, role):
     launcher = start_launcher(tmp_path, 300.0)
     try:
         wait_for_line(launcher, "processes up")
         kids = children_of(launcher.pid)
-        (world,) = [pid for pid, cmd in kids.items() if " world " in cmd]
-        os.kill(world, signal.SIGKILL)
+        (victim,) = [pid for pid, cmd in kids.items() if f" {role} " in cmd]
+        os.kill(victim, signal.SIGKILL)
         _, err = launcher.communicate(timeout=15)
         assert launcher.returncode == 1
-        assert f"world (pid {world}) died: killed by SIGKILL" in err
+        assert f"{role} (pid {victim}) died: killed by SIGKILL" in err
         assert all(gone(pid) for pid in kids)
     finally:
         if launcher.poll() is None:
