@@ -438,8 +438,10 @@ def _progress(swarm: Swarm, t0: float, stream=sys.stderr) -> None:
     f_err = float(np.linalg.norm(s.p - p0 - offsets, axis=1).max())
     rate = s.tick / max(time.monotonic() - t0, 1e-9)
     up = sum(1 for c in swarm.children.values() if c.running())
-    stream.write(f"\r  t = {s.t:7.2f} / {sc.duration:g} s   {rate:7.0f} ticks/s   "
-                 f"max formation error {f_err:8.3f} m   processes up {up}/{len(swarm.children)} ")
+    line = (f"  t = {s.t:7.2f} / {sc.duration:g} s   {rate:7.0f} ticks/s   "
+            f"max formation error {f_err:8.3f} m   processes up {up}/{len(swarm.children)} ")
+    # On a terminal the line overwrites itself; in a log file each update is a line of its own.
+    stream.write("\r" + line if stream.isatty() else line + "\n")
     stream.flush()
 
 
@@ -485,12 +487,13 @@ def main(args: argparse.Namespace) -> int:
             if code or not world.running():
                 break
             now = time.monotonic()
-            if not args.quiet and now - last > 0.5:
+            if not args.quiet and now - last > (0.5 if sys.stderr.isatty() else 5.0):
                 _progress(swarm, t0)
                 last = now
         if not args.quiet:
             _progress(swarm, t0)
-            sys.stderr.write("\n")
+            if sys.stderr.isatty():
+                sys.stderr.write("\n")
         if world.popen.returncode not in (None, 0) and code == 0:
             print(f"fxswarm run: {Death(world, world.popen.returncode).describe()}", file=sys.stderr)
             code = 1
