@@ -14,7 +14,7 @@ import sys
 
 import pytest
 
-from fxswarm.core.scenario import load
+from fxswarm.core.scenario import load, parse
 from fxswarm.study.sweep import claims, plan, run_sweep
 
 PAPER = "configs/paper.toml"
@@ -123,3 +123,14 @@ def test_full_sweep_shows_the_claims():
     assert fin[1e5]["formation_settle_s"] > 5 * c["fixed_time_formation_bound_s"]
     for r in rows:
         assert r["settled"] and r["estimate_settle_s"] <= r["bounds"]["estimator_derived_from_initial_s"]
+
+
+@pytest.mark.slow
+def test_derived_bound_holds_for_the_aggregate_power():
+    """The derivation covers eq. (11) in its aggregate form: check it there too, at the top scales."""
+    base = load(PAPER)
+    aggregate = parse(dict(base.raw, estimator={"power": "aggregate"}), "paper-aggregate")
+    rows = run_sweep(plan(aggregate, [1e4, 1e5], ["fixed-time"]), workers=2)
+    for r in rows:
+        assert r["estimate_settle_s"] <= r["bounds"]["estimator_derived_from_initial_s"]
+        assert r["formation_settle_s"] < r["bounds"]["formation_bound_s"]
