@@ -99,8 +99,11 @@ def fxswarm_image() -> str:
     """The project's image, built once per session on the registry-free local base image."""
     require_docker()
     _run([str(REPO / "docker" / "build-base-image.sh")], 1500, "docker/build-base-image.sh")
-    _run(["docker", "build", "-q", "--build-arg", f"BASE_IMAGE={BASE_IMAGE}", "-t", IMAGE, str(REPO)],
-         900, "docker build of the project")
+    old = subprocess.run(["docker", "image", "inspect", "-f", "{{.Id}}", IMAGE], capture_output=True, text=True)
+    new = _run(["docker", "build", "-q", "--build-arg", f"BASE_IMAGE={BASE_IMAGE}", "-t", IMAGE, str(REPO)],
+               900, "docker build of the project").strip()
+    if old.returncode == 0 and old.stdout.strip() != new:  # the last session's image, now untagged
+        subprocess.run(["docker", "rmi", old.stdout.strip()], capture_output=True)
     return IMAGE
 
 
