@@ -124,8 +124,9 @@ def services(scenario: Scenario, scenario_path: str, context: str) -> dict:
     # The world starts the clock: after the logger is recording; it waits for leader and agents itself.
     # A lock-step tick waits this long for a live agent's command (a dead one is not waited for:
     # liveliness says it is gone): long, since a loaded host stalls containers for a second or more.
-    out["world"] = role("world", 0, ["--tick-timeout", var("FXSWARM_TICK_TIMEOUT", "5")], depends={"router": {"condition": "service_started"},
-                                             "logger": {"condition": "service_healthy"}})
+    out["world"] = role("world", 0, ["--tick-timeout", var("FXSWARM_TICK_TIMEOUT", "5")],
+                        depends={"router": {"condition": "service_started"},
+                                 "logger": {"condition": "service_healthy"}})
     return {"services": out}
 
 
