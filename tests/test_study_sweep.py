@@ -121,6 +121,15 @@ def test_full_sweep_shows_the_claims():
                   (fin[1e4]["formation_settle_s"] / fin[1e2]["formation_settle_s"]) ** 0.5)
     assert 1.4 < per_decade[0] < 2.0 and 1.4 < per_decade[1] < 2.0
     assert fin[1e5]["formation_settle_s"] > 5 * c["fixed_time_formation_bound_s"]
+    # seconds added per decade of initial error, 1e2..1e4 then 1e4..1e5: shrinking (bounded),
+    # constant (logarithmic), growing (power); the estimator's, which Euler's floor does not blur
+    def per_decade(variant: str) -> tuple[float, float]:
+        t = {s: r["estimate_settle_s"] for s, r in by_scale(rows, variant).items()}
+        return (t[1e4] - t[1e2]) / 2, t[1e5] - t[1e4]
+    fixed_steps, asym_steps, fin_steps = per_decade("fixed-time"), per_decade("asymptotic"), per_decade("finite-time")
+    assert fixed_steps[1] < 0.7 * fixed_steps[0]
+    assert asym_steps[1] == pytest.approx(asym_steps[0], rel=0.25)
+    assert fin_steps[1] > 1.4 * fin_steps[0]
     for r in rows:
         assert r["settled"] and r["estimate_settle_s"] <= r["bounds"]["estimator_derived_from_initial_s"]
 
