@@ -298,11 +298,16 @@ class Swarm:
         """Simulation time of the latest world state heard (s); -1 before any."""
         return self.state.t if self.state is not None else -1.0
 
-    def kill(self, name: str, sig: int = signal.SIGKILL) -> None:
+    def kill(self, name: str, sig: int = signal.SIGKILL, timeout: float = 10.0) -> None:
+        """End a process (planned: not reported as a death) and wait until the swarm has seen it go."""
         child = self.children[name]
         child.stopped_by = signal.Signals(sig).name
         child.popen.send_signal(sig)
+        if sig == signal.SIGTERM:
+            child.popen.send_signal(signal.SIGCONT)  # a frozen process must wake to handle it
         child.popen.wait(timeout=5)
+        # Its liveliness token outlives it by a moment: a restart must not mistake it for the new one.
+        self.wait_gone(name, timeout)
 
     def freeze(self, name: str) -> None:
         self.children[name].popen.send_signal(signal.SIGSTOP)
