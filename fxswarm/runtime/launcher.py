@@ -44,6 +44,7 @@ from fxswarm.runtime.sim_cli import load_or_exit
 from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions, zenoh_table
 
 STOP_BUDGET_S = 4.5  # Ctrl-C to nothing left: the issue promises 5 s
+LOGGER_GRACE_S = 15.0  # at the end of a run, time for the logger to close its recording by itself
 
 
 def free_port() -> int:
@@ -346,11 +347,16 @@ class Swarm:
         """End every process within ``budget`` s; return ``{name: how}``.
 
         ``grace``: first let processes that are ending by themselves (agents
-        once the world has gone) finish for up to that long.
+        and leader once the world has gone) finish for up to that long; the
+        logger, which then closes its recording, for up to ``LOGGER_GRACE_S``.
         """
-        end = time.monotonic() + grace
-        while grace and any(c.running() for c in self.children.values() if c.role in ("agent", "leader")):
-            if time.monotonic() > end:
+        start = time.monotonic()
+        while grace:
+            waited = time.monotonic() - start
+            leaving = [c for c in self.children.values() if c.running() and (
+                (c.role in ("agent", "leader") and waited < grace)
+                or (c.role == "logger" and waited < max(grace, LOGGER_GRACE_S)))]
+            if not leaving:
                 break
             self.poll(0.05)
         how: dict[str, str] = {}
