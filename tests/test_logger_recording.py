@@ -278,3 +278,11 @@ def test_moving_obstacles_move_in_the_recording(scenario, tmp_path):
     centres = np.array(series["Ellipsoids3D:centers"])
     np.testing.assert_allclose(centres, traj["obstacles"][k], atol=1e-4)
     assert centres[-1, 0, 0] > centres[0, 0, 0] + 0.4  # it moved along x
+
+
+def test_link_health_counts_drops_among_messages_taken_in_groups(scenario):
+    links = LinkHealth(scenario)
+    links.heard(2, seq=4, tick=3, t=0.03, count=4)  # the first four, seen as one group: no drop
+    links.heard(2, seq=10, tick=9, t=0.09, count=4)  # six numbers later, four arrived: two lost
+    links.heard(2, seq=11, tick=10, t=0.10)
+    assert links.drop_count[2] == 2 and links.last_tick[2] == 10

@@ -6,10 +6,11 @@ which only drop the raw payload and its arrival time into a bounded ring
 (:class:`~fxswarm.logger.inbox.Inbox`): the bus never waits on the logger,
 and when the logger falls behind it loses the oldest messages and counts
 them. The main thread decodes, validates (as the Zenoh bus does) and hands
-messages to the :class:`~fxswarm.logger.recorder.SwarmRecorder`: it reads
-only the header of estimates and leader states (all link health needs) and
-of the world states the log rate skips (:mod:`.peek`), and fully decodes
-the world states it draws.
+messages to the :class:`~fxswarm.logger.recorder.SwarmRecorder`: of the
+estimates and leader states that arrive between two drawn frames it reads
+only the latest header per sender (all link health needs), of the world states
+the log rate skips only the header (:mod:`.peek`), and it fully decodes
+only the world states it draws.
 
 It says it is alive (``alive/logger/0``) only once it is subscribed and the
 recording is open, so a launcher that waits for it loses no tick. It ends
@@ -106,21 +107,44 @@ class LoggerProcess:
         bus.declare_alive("logger", 0)
 
     def drain(self, limit: int | None = DRAIN_BATCH) -> int:
-        """Handle queued messages: headers only, except the world states that will be drawn."""
+        """Handle queued messages in arrival order.
+
+        Estimates and leader states matter only for link health: per sender, only
+        the latest of those that arrived since the previous drawn frame is
+        unpacked (with the count of the others), so a frame sees every estimate
+        that arrived before it. Of the world states, only those the log rate
+        keeps are decoded in full.
+        """
         n = 0
         recorder = self.recorder
-        heard = recorder.links.heard
+        pending: dict[str, list] = {}  # topic -> [latest payload, how many]
+
+        def apply_pending() -> None:
+            for topic, (payload, count) in pending.items():
+                h = peek_header(payload)
+                if h is None or not _belongs(topic, h):
+                    self.invalid += 1
+                    continue
+                recorder.links.heard(h.sender if h.kind == "estimate" else 0, h.seq, h.tick, h.t, count)
+            pending.clear()
+
         for topic, payload, wall in self.inbox.drain(limit):
+            n += 1
+            if topic != topics.WORLD_STATE:
+                held = pending.get(topic)
+                if held is None:
+                    pending[topic] = [payload, 1]
+                else:
+                    held[0] = payload
+                    held[1] += 1
+                continue
             h = peek_header(payload)
             if h is None or not _belongs(topic, h):
                 self.invalid += 1
-                continue
-            n += 1
-            if h.kind != "state":
-                heard(h.sender if h.kind == "estimate" else 0, h.seq, h.tick, h.t)
             elif not recorder.due(h.t):
                 recorder.skipped += 1
             else:
+                apply_pending()  # everything that arrived before this frame, and nothing after
                 try:
                     msg = decode(payload)
                     check_sender(topic, msg)
@@ -128,6 +152,7 @@ class LoggerProcess:
                     self.invalid += 1
                     continue
                 recorder.take(topic, msg, wall)
+        apply_pending()
         recorder.dropped = self.inbox.dropped
         counters = self.proc.bus.counters  # the same counters every process reports in summary.json
         counters.received += n

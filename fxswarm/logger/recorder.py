@@ -98,13 +98,20 @@ class LinkHealth:
         """(n + 1,) sequence numbers skipped per sender (index 0: the leader)."""
         return np.array(self.drop_count, dtype=np.int64)
 
-    def heard(self, sender: int, seq: int, tick: int, t: float) -> None:
+    def heard(self, sender: int, seq: int, tick: int, t: float, count: int = 1) -> None:
+        """``count`` messages arrived from ``sender``, the latest numbered ``seq`` (tick ``tick``, time ``t``).
+
+        The numbers skipped since the last call, less the ``count - 1`` not seen
+        individually, are drops. (The logger process reads only the latest of
+        several queued estimates of a sender: one unpack instead of several.)
+        """
         if not 0 <= sender < len(self.last_tick):
             return
         last = self.last_seq[sender]
         if seq > last:
-            if last and seq > last + 1:
-                self.drop_count[sender] += seq - last - 1
+            missing = seq - last - count
+            if last and missing > 0:
+                self.drop_count[sender] += missing
                 self.last_drop_t[sender] = t
             self.last_seq[sender] = seq
         if tick > self.last_tick[sender]:
