@@ -352,7 +352,7 @@ class Observer:
 
 #: How long agent 5 stays off the network, wall s (the fault itself, not a wait). Kept short:
 #: every publisher uses Zenoh's BLOCK congestion control, so while one client's link is dead
-#: the router stalls the whole swarm, and past a few seconds the swarm does not fully recover
+#: the router pauses the whole swarm, and after longer cuts we saw it not fully recover
 #: (docs/DESIGN.md "Compose swarm": a finding for the runtime).
 CUT_S = 2.0
 FRESH_S = 0.2  # a command at most this far (simulation s) behind the swarm's newest is fresh
@@ -456,8 +456,10 @@ def test_docker_network_disconnect_is_seen_as_staleness_and_recovered_from(broke
           f"arrived for {obs.silent_wall_s:.2f} s, the stalest was {obs.stalest_s:.2f} s behind the swarm, "
           f"fresh again at t = {obs.resumed_at_t:.2f} s; the world's worst sensing-to-command "
           f"latency {latency['max_ms']:.0f} ms; degraded ticks {s['faults']['degraded_ticks']}")
-    # Seen: nothing of robot 5 crosses the cut, and the world waited longer than the cut's
-    # half for some command to answer its sensing (stale: the world held the last one meanwhile).
+    # Seen: nothing of robot 5 crosses the cut, and the world waited longer than half the cut
+    # for a command answering its sensing (docs/DESIGN.md: with BLOCK congestion control the
+    # router's full queue to the deaf robot pauses the others too, so the world's latency, not
+    # the neighbours' staleness counts, is where the cut shows).
     assert obs.silent_wall_s >= 0.5 * CUT_S, "no command of robot 5 crosses a cut network"
     assert latency["max_ms"] >= 500 * CUT_S
     # Recovered: never taken for dead (the cut is shorter than the lease), fresh again, the run
