@@ -4,7 +4,10 @@ For each (drop, delay) point, two in-memory lock-step runs with the same seed:
   * links only: final formation and estimate error, the largest error after the formation
     first settled, min distance to any object, settle time;
   * links + agent 2 killed at 10 s and restarted at 12 s (fresh state): recovery_s, the time
-    after the restart until robot 2 is back under the settle tolerance (None: never).
+    after the restart until robot 2 is back under the settle tolerance (None: never, which is
+    the case whenever the delay alone keeps the formation above it), and recovery_excess_s,
+    the time until robot 2's error is back within the tolerance of its error in the same run
+    without the crash (the crash's own cost, separate from what the links cost everyone).
 Writes plot-ready JSON to benchmarks/results/faults.json: axes, then one 2-D grid per metric
 (rows: drop, columns: delay), and the raw rows.
 
@@ -22,6 +25,8 @@ import tomllib
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 BASE = ROOT / "configs" / "paper-fast.toml"
 DROPS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6)
@@ -31,6 +36,7 @@ SEED = 7
 
 
 def one_point(args: tuple[float, float]) -> dict:
+    from fxswarm.core.metrics import formation_errors, settle_time
     from fxswarm.core.scenario import parse
     from fxswarm.runtime.sim import Simulation
 
@@ -42,12 +48,19 @@ def one_point(args: tuple[float, float]) -> dict:
         data["faults"] = {"seed": SEED, "links": [link], **({"processes": [CRASH]} if crash else {})}
         sc = parse(data, f"{BASE.name} drop={drop} delay={delay}{' crash' if crash else ''}")
         start = time.perf_counter()
-        s = Simulation(sc).run()
+        sim = Simulation(sc)
+        s = sim.run()
         wall = time.perf_counter() - start
+        err = formation_errors(sim.trajectory())[:, 1]  # robot 2
         if crash:
             row["recovery_s"] = s["faults"]["recoveries"][0]["recovery_s"]
+            t = sim.trajectory()["t"]
+            after = t >= CRASH["restart"] - 1e-9
+            back = settle_time(t[after], np.abs(err - err_links)[after], sc.settle_tolerance)
+            row["recovery_excess_s"] = None if back is None else round(back - CRASH["restart"], 6)
             row["crash_formation_error_final_m"] = s["formation_error_final_m"]
         else:
+            err_links = err
             row.update(formation_error_final_m=s["formation_error_final_m"],
                        estimate_error_final_m=s["estimate_error_final_m"],
                        max_formation_error_after_settle_m=s["max_formation_error_after_settle_m"],
@@ -71,7 +84,7 @@ def main() -> None:
     with ProcessPoolExecutor(args.workers) as pool:
         rows = list(pool.map(one_point, points))
     metrics = ("formation_error_final_m", "estimate_error_final_m", "max_formation_error_after_settle_m",
-               "min_object_distance_m", "formation_settle_s", "recovery_s")
+               "min_object_distance_m", "formation_settle_s", "recovery_s", "recovery_excess_s")
     grid = {m: [[next(r[m] for r in rows if r["drop"] == d and r["delay_s"] == t) for t in delays] for d in drops]
             for m in metrics}
     result = {
