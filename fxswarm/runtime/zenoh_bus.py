@@ -175,8 +175,15 @@ _RAW = object()  # tags a payload handed over undecoded
 class ZenohBus:
     """One Zenoh session of one process, with the :class:`~fxswarm.core.bus.Bus` interface."""
 
-    def __init__(self, swarm: str, options: ZenohOptions, validate: bool = True) -> None:
+    def __init__(self, swarm: str, options: ZenohOptions, validate: bool = True, drop_when_congested: bool = False) -> None:
+        """``drop_when_congested``: publish with Zenoh's DROP congestion control instead of BLOCK.
+
+        Lock-step needs every message (BLOCK); in real time a message is worth less than
+        not waiting for it: with BLOCK, one robot cut off the network fills the router's
+        queue towards it and pauses every publisher, the world's clock included.
+        """
         self.swarm = swarm
+        self._congestion = zenoh.CongestionControl.DROP if drop_when_congested else zenoh.CongestionControl.BLOCK
         self.options = options
         self.root = topics.prefix(swarm)
         self.counters = Counters()
@@ -202,7 +209,7 @@ class ZenohBus:
         pub = self._publishers.get(topic)
         if pub is None:
             pub = self.session.declare_publisher(
-                f"{self.root}/{topic}", congestion_control=zenoh.CongestionControl.BLOCK,
+                f"{self.root}/{topic}", congestion_control=self._congestion,
                 priority=zenoh.Priority.REAL_TIME, express=True)
             self._publishers[topic] = pub
         pub.put(payload)
