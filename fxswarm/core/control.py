@@ -101,14 +101,31 @@ def estimator_rate(
     """
     if len(weights) == 0:
         return np.zeros(3)
-    diff = ph_i - neighbours  # (m, 3)
-    eta3 = weights @ diff
-    exponents = gains.exponents
-    if gains.power == "aggregate":
-        eta12 = np.sign(eta3) * np.abs(eta3) ** exponents[:, 0]  # (2, 3)
-    else:
-        eta12 = weights @ (np.sign(diff) * np.abs(diff) ** exponents)  # (2, 3): both powers at once
-    return -gains.K1 * eta12[0] - gains.K2 * eta12[1] - gains.K3 * np.sign(eta3)  # eq. (11)
+    return np.array(_estimator_rate_floats(ph_i.tolist(), neighbours.tolist(), weights.tolist(), gains))
+
+
+def _estimator_rate_floats(ph: list[float], rows: list[list[float]], ws: list[float], gains: EstimatorGains) -> list[float]:
+    """:func:`estimator_rate` on Python floats (m >= 1): per-axis sums, eq. (11)."""
+    # Python floats on 3-vectors: each numpy call costs ~1 us, more than the arithmetic itself.
+    a1, a2 = gains.r3 / gains.r4, gains.r5 / gains.r6
+    K1, K2, K3 = gains.K1, gains.K2, gains.K3
+    pairwise = gains.power != "aggregate"
+    out = [0.0, 0.0, 0.0]
+    for k in range(3):
+        x = ph[k]
+        s1 = s2 = s3 = 0.0
+        for w, row in zip(ws, rows):
+            d = x - row[k]
+            s3 += w * d
+            if pairwise and d:
+                ad = abs(d)
+                s1 += math.copysign(w * ad**a1, d)
+                s2 += math.copysign(w * ad**a2, d)
+        if not pairwise and s3:
+            ad = abs(s3)
+            s1, s2 = math.copysign(ad**a1, s3), math.copysign(ad**a2, s3)
+        out[k] = -K1 * s1 - K2 * s2 - (K3 if s3 > 0.0 else -K3 if s3 < 0.0 else 0.0)  # eq. (11)
+    return out
 
 
 def formation_error(p_i: np.ndarray, ph_i: np.ndarray, p_i0: np.ndarray) -> np.ndarray:
@@ -129,12 +146,17 @@ def formation_velocity(
     Guard: for ``|e| < EPS`` the pseudo-inverse is undefined and the robot
     just follows its reference, ``dph_i + dp_i0``.
     """
-    feedforward = dph_i + dp_i0
-    e2 = float(e_i @ e_i)
+    return np.array(_formation_velocity_floats(e_i.tolist(), dph_i.tolist(), dp_i0.tolist(), g))
+
+
+def _formation_velocity_floats(e: list[float], dph: list[float], dp0: list[float], g: BehaviourGains) -> list[float]:
+    """:func:`formation_velocity` on Python floats (3-vectors: cheaper than numpy calls)."""
+    ff = [dph[0] + dp0[0], dph[1] + dp0[1], dph[2] + dp0[2]]
+    e2 = e[0] * e[0] + e[1] * e[1] + e[2] * e[2]
     if e2 < EPS * EPS:
-        return feedforward
-    rho = 0.5 * e2
-    return e_i / e2 * (-task_rate(rho, g) + float(e_i @ feedforward))  # eq. (v2)
+        return ff
+    c = -task_rate(0.5 * e2, g) + (e[0] * ff[0] + e[1] * ff[1] + e[2] * ff[2])
+    return [e[0] / e2 * c, e[1] / e2 * c, e[2] / e2 * c]  # eq. (v2)
 
 
 def avoidance_task(u: np.ndarray, d: float) -> float:
@@ -233,6 +255,9 @@ def robot_control(
     ``(ph_next - ph_i)/dt``, so that ``ph_i + dt*dph`` is the implicit solution.
     None (the default): explicit Euler, SPEC section 7.
     """
+    if semi_implicit_dt is None:
+        return _robot_control_explicit(p_i, ph_i, neighbours, weights, p_i0, dp_i0, po, vo, d,
+                                       formation, avoidance, estimator, v_max, dph)
     if dph is None:  # given: the estimate's rate when it is extrapolated (nobody heard)
         if semi_implicit_dt is None:
             dph = estimator_rate(ph_i, neighbours, weights, estimator)
@@ -253,6 +278,36 @@ def robot_control(
             v_if = merged_velocity(v_io, u, v_if)
     v, limited = limit_speed(v_if, v_max)
     return ControlOutput(v=v, dph=dph, e=e, avoid_active=active, speed_limited=limited)
+
+
+def _robot_control_explicit(p_i, ph_i, neighbours, weights, p_i0, dp_i0, po, vo, d,
+                            formation, avoidance, estimator, v_max, dph) -> ControlOutput:
+    """:func:`robot_control` with explicit Euler (SPEC section 7), the common case."""
+    # Python floats on 3-vectors: each numpy call costs ~1 us, more than the arithmetic itself.
+    p, ph, p0 = p_i.tolist(), ph_i.tolist(), p_i0.tolist()
+    if dph is None:
+        dph_l = _estimator_rate_floats(ph, neighbours.tolist(), weights.tolist(), estimator) if len(weights) else [0.0] * 3
+        dph = np.array(dph_l)
+    else:  # given: the estimate's rate when it is extrapolated (nobody heard)
+        dph_l = dph.tolist()
+    e = [p[0] - ph[0] - p0[0], p[1] - ph[1] - p0[1], p[2] - ph[2] - p0[2]]  # eq. (ctbf)
+    v_l = _formation_velocity_floats(e, dph_l, dp_i0.tolist(), formation)  # eq. (v2)
+    active = False
+    v = None
+    if po is not None:
+        q = po.tolist()
+        u = [p[0] - q[0], p[1] - q[1], p[2] - q[2]]
+        if 0.5 * d * d - 0.5 * (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]) > 0.0:  # eq. (2): inside the zone
+            active = True  # rare: the numpy functions, eqs. (v1), (v)
+            u_arr = np.array(u)
+            v_io = avoidance_velocity(u_arr, vo if vo is not None else np.zeros(3), d, avoidance)
+            v = merged_velocity(v_io, u_arr, np.array(v_l))
+    limited = False
+    if v_max is not None:
+        v, limited = limit_speed(np.array(v_l) if v is None else v, v_max)
+    elif v is None:
+        v = np.array(v_l)
+    return ControlOutput(v=v, dph=dph, e=np.array(e), avoid_active=active, speed_limited=limited)
 
 
 # --- semi-implicit discretisation (scenario [controller] discretisation = "semi-implicit") ----------
