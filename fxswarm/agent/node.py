@@ -9,12 +9,10 @@ sleep: the runners drive it in lock-step or in real time.
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import replace
-
 import numpy as np
 
 from fxswarm.core import bus as topics
-from fxswarm.core.control import robot_control
+from fxswarm.core.control import robot_control, robot_control_floats
 from fxswarm.core.messages import Command, Estimate, LeaderState, Message, Sense
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.plan import degraded_limits
@@ -54,6 +52,7 @@ class AgentNode:
         if self.pinned:
             weights.append(scenario.b[robot_id - 1])
         self.weights = np.array(weights, dtype=float)
+        self._weight_list = self.weights.tolist()
         self.sense: Sense | None = None
         self.estimates: dict[int, Estimate] = {}  # latest held per neighbour (zero-order hold)
         self.leader: LeaderState | None = None
@@ -142,25 +141,32 @@ class AgentNode:
         """The estimates this robot holds, shape (m, 3), neighbours in ascending id then the
         leader (``ph_0 := p0``), with their weights ``a_ij`` / ``b_i``, shape (m,).
         Those sent before ``fresh_by`` (s) are stale and left out."""
-        ids = self.neighbour_ids
+        rows, weights, _, _ = self._held_rows(fresh_by)
+        return np.array(rows, dtype=float).reshape(-1, 3), np.array(weights, dtype=float)
+
+    def _held_rows(self, fresh_by: float) -> tuple[list[list[float]], list[float], bool, bool]:
+        """:meth:`held_estimates` as lists, and whether a neighbour / the (pinned) leader is
+        missing or stale: one pass over the holds (the agent's per-tick hot path)."""
+        rows: list[list[float]] = []
+        weights: list[float] = []
+        stale_neighbour = False
         held = self.estimates
-        leader = self.leader
-        if any(h.t < fresh_by for h in held.values()):
-            held = {j: h for j, h in held.items() if h.t >= fresh_by}
-        if leader is not None and leader.t < fresh_by:
-            leader = None
-        if len(held) == len(ids) and (not self.pinned or leader is not None):
-            rows = [held[j].ph for j in ids]  # the usual case: everyone heard, weights as built
-            weights = self.weights
-        else:
-            rows = [held[j].ph for j in ids if j in held]
-            weights = [w for j, w in zip(ids, self.weights) if j in held]
-            if self.pinned and leader is not None:
-                weights.append(self.weights[-1])
-            weights = np.array(weights, dtype=float)
-        if self.pinned and leader is not None:
-            rows.append(leader.p0)
-        return np.array(rows).reshape(-1, 3), weights
+        for j, w in zip(self.neighbour_ids, self._weight_list):
+            h = held.get(j)
+            if h is None or h.t < fresh_by:
+                stale_neighbour = True
+            else:
+                rows.append(h.ph.tolist())
+                weights.append(w)
+        no_leader = False
+        if self.pinned:
+            leader = self.leader
+            if leader is None or leader.t < fresh_by:
+                no_leader = True
+            else:
+                rows.append(leader.p0.tolist())
+                weights.append(self._weight_list[-1])
+        return rows, weights, stale_neighbour, no_leader
 
     def act(self, dt: float) -> topics.Outgoing:
         """Compute the command from what is held, step the estimate by ``dt``, return the command."""
@@ -168,32 +174,46 @@ class AgentNode:
         assert s is not None, "act() before any sensing"
         now = s.t if self.lockstep else (self.sensed_t if self.sensed_t is not None else s.t) + self.since_sense_s
         fresh_by = now - self.limits.staleness - 1e-9  # heard before this: stale (s)
-        neighbours, weights = self.held_estimates(fresh_by)
-        p_i0, dp_i0 = self.offset.state(s.t)
+        rows, weights, stale_neighbour, no_leader = self._held_rows(fresh_by)
         hears = len(weights) > 0
         if not hears and self.v_extrapolate is None:
             self._start_extrapolating(now)
-        out = robot_control(
-            s.p, self.ph, neighbours, weights, p_i0, dp_i0,
-            s.po, s.vo, self.sc.d, self.sc.formation, self.sc.avoidance, self.sc.estimator, self.sc.v_max,
-            dph=None if hears else self.v_extrapolate,  # hearing nobody: extrapolate
-            semi_implicit_dt=dt if self.sc.discretisation == "semi-implicit" else None,  # default: Euler
-        )
-        flags = self._degraded_flags(fresh_by, hears, now)
+        if self.sc.discretisation == "semi-implicit":
+            out = robot_control(
+                s.p, self.ph, np.array(rows, dtype=float).reshape(-1, 3), np.array(weights, dtype=float),
+                *self.offset.state(s.t), s.po, s.vo, self.sc.d, self.sc.formation, self.sc.avoidance,
+                self.sc.estimator, self.sc.v_max,
+                dph=None if hears else self.v_extrapolate,  # hearing nobody: extrapolate
+                semi_implicit_dt=dt,
+            )
+            v, dph, avoid_active, limited = out.v.tolist(), out.dph.tolist(), out.avoid_active, out.speed_limited
+        else:  # the default, explicit Euler: the law on Python floats (3-vectors: numpy calls cost more)
+            p_i0, dp_i0 = self.offset.state_lists(s.t)
+            v, dph, _, avoid_active, limited = robot_control_floats(
+                s.p.tolist(), self.ph.tolist(), rows, weights, p_i0, dp_i0,
+                None if s.po is None else s.po.tolist(), None if s.vo is None else s.vo.tolist(),
+                self.sc.d, self.sc.formation, self.sc.avoidance, self.sc.estimator, self.sc.v_max,
+                dph=None if hears else self.v_extrapolate.tolist(),  # hearing nobody: extrapolate
+            )
+        flags = self._degraded_flags(stale_neighbour, no_leader, hears, now)
         if hears:
-            self.v_leader = self.v_leader + min(1.0, dt / LEADER_VELOCITY_TAU_S) * (out.dph - self.v_leader)
+            gain = min(1.0, dt / LEADER_VELOCITY_TAU_S)
+            vl = self.v_leader.tolist()
+            self.v_leader = np.array([vl[0] + gain * (dph[0] - vl[0]), vl[1] + gain * (dph[1] - vl[1]),
+                                      vl[2] + gain * (dph[2] - vl[2])])
             self.v_extrapolate = None
         self.history.append((now, self.ph, self.v_leader))
         if flags & FLAG_NO_SENSING:
-            out = replace(out, v=np.zeros(3))  # blind for too long: stop rather than fly on old sensing
-        self.speed_limited += out.speed_limited
+            v = [0.0, 0.0, 0.0]  # blind for too long: stop rather than fly on old sensing
+        self.speed_limited += limited
         ph_used = self.ph
-        self.ph = self.ph + dt * out.dph  # explicit Euler (SPEC section 7)
+        ph = ph_used.tolist()
+        self.ph = np.array([ph[0] + dt * dph[0], ph[1] + dt * dph[1], ph[2] + dt * dph[2]])  # explicit Euler (SPEC 7)
         self.acted_tick = s.tick
         self.seq_command += 1
         if not self.lockstep:
             self.since_sense_s += dt
-        cmd = Command("agent", self.id, self.seq_command, s.tick, s.t, self.id, out.v, ph_used, out.avoid_active,
+        cmd = Command("agent", self.id, self.seq_command, s.tick, s.t, self.id, np.array(v), ph_used, avoid_active,
                       flags)
         return topics.command_topic(self.id), cmd
 
@@ -212,12 +232,13 @@ class AgentNode:
         self.v_extrapolate = v0
         self.ph = ph0 + (now - t0) * v0
 
-    def _degraded_flags(self, fresh_by: float, hears: bool, now: float) -> int:
-        """The degraded modes of this step (``FLAG_*`` bits), counted in ``degraded_ticks``."""
+    def _degraded_flags(self, stale_neighbour: bool, no_leader: bool, hears: bool, now: float) -> int:
+        """The degraded modes of this step (``FLAG_*`` bits), counted in ``degraded_ticks``.
+        ``stale_neighbour``/``no_leader``: from :meth:`_held_rows`."""
         flags = 0
-        if any((h := self.estimates.get(j)) is None or h.t < fresh_by for j in self.neighbour_ids):
+        if stale_neighbour:
             flags |= FLAG_STALE_NEIGHBOUR
-        if self.pinned and (self.leader is None or self.leader.t < fresh_by):
+        if no_leader:
             flags |= FLAG_NO_LEADER
         if not hears:
             flags |= FLAG_EXTRAPOLATING

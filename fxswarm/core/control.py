@@ -256,8 +256,12 @@ def robot_control(
     None (the default): explicit Euler, SPEC section 7.
     """
     if semi_implicit_dt is None:
-        return _robot_control_explicit(p_i, ph_i, neighbours, weights, p_i0, dp_i0, po, vo, d,
-                                       formation, avoidance, estimator, v_max, dph)
+        v, dph_l, e, active, limited = robot_control_floats(
+            p_i.tolist(), ph_i.tolist(), neighbours.tolist(), weights.tolist(), p_i0.tolist(), dp_i0.tolist(),
+            None if po is None else po.tolist(), None if vo is None else vo.tolist(), d,
+            formation, avoidance, estimator, v_max, None if dph is None else dph.tolist())
+        return ControlOutput(v=np.array(v), dph=np.array(dph_l) if dph is None else dph, e=np.array(e),
+                             avoid_active=active, speed_limited=limited)
     if dph is None:  # given: the estimate's rate when it is extrapolated (nobody heard)
         if semi_implicit_dt is None:
             dph = estimator_rate(ph_i, neighbours, weights, estimator)
@@ -280,34 +284,47 @@ def robot_control(
     return ControlOutput(v=v, dph=dph, e=e, avoid_active=active, speed_limited=limited)
 
 
-def _robot_control_explicit(p_i, ph_i, neighbours, weights, p_i0, dp_i0, po, vo, d,
-                            formation, avoidance, estimator, v_max, dph) -> ControlOutput:
-    """:func:`robot_control` with explicit Euler (SPEC section 7), the common case."""
-    # Python floats on 3-vectors: each numpy call costs ~1 us, more than the arithmetic itself.
-    p, ph, p0 = p_i.tolist(), ph_i.tolist(), p_i0.tolist()
+def robot_control_floats(
+    p: list[float],
+    ph: list[float],
+    rows: list[list[float]],
+    ws: list[float],
+    p0: list[float],
+    dp0: list[float],
+    po: list[float] | None,
+    vo: list[float] | None,
+    d: float,
+    formation: BehaviourGains,
+    avoidance: BehaviourGains,
+    estimator: EstimatorGains,
+    v_max: float | None = None,
+    dph: list[float] | None = None,
+) -> tuple[list[float], list[float], list[float], bool, bool]:
+    """:func:`robot_control` with explicit Euler (SPEC section 7) on Python lists: eqs. (11), (v2), (v1), (v).
+
+    3-vectors are ``[x, y, z]`` lists (m, m/s); ``rows`` the (m, 3) estimates held, ``ws`` their
+    weights (m,). Returns ``(v, dph, e, avoid_active, speed_limited)``, vectors as lists.
+    """
+    # Python floats on 3-vectors: each numpy call costs ~1 us, more than the arithmetic itself
+    # (the agent's per-tick hot path, issue 2); the rare avoidance case uses the numpy functions.
     if dph is None:
-        dph_l = _estimator_rate_floats(ph, neighbours.tolist(), weights.tolist(), estimator) if len(weights) else [0.0] * 3
-        dph = np.array(dph_l)
-    else:  # given: the estimate's rate when it is extrapolated (nobody heard)
-        dph_l = dph.tolist()
+        dph = _estimator_rate_floats(ph, rows, ws, estimator) if ws else [0.0, 0.0, 0.0]
     e = [p[0] - ph[0] - p0[0], p[1] - ph[1] - p0[1], p[2] - ph[2] - p0[2]]  # eq. (ctbf)
-    v_l = _formation_velocity_floats(e, dph_l, dp_i0.tolist(), formation)  # eq. (v2)
+    v = _formation_velocity_floats(e, dph, dp0, formation)  # eq. (v2)
     active = False
-    v = None
     if po is not None:
-        q = po.tolist()
-        u = [p[0] - q[0], p[1] - q[1], p[2] - q[2]]
-        if 0.5 * d * d - 0.5 * (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]) > 0.0:  # eq. (2): inside the zone
-            active = True  # rare: the numpy functions, eqs. (v1), (v)
+        u = [p[0] - po[0], p[1] - po[1], p[2] - po[2]]
+        if 0.5 * d * d - 0.5 * (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]) > 0.0:  # eq. (2): in the zone
+            active = True
             u_arr = np.array(u)
-            v_io = avoidance_velocity(u_arr, vo if vo is not None else np.zeros(3), d, avoidance)
-            v = merged_velocity(v_io, u_arr, np.array(v_l))
+            v_io = avoidance_velocity(u_arr, np.array(vo) if vo is not None else np.zeros(3), d, avoidance)
+            v = merged_velocity(v_io, u_arr, np.array(v)).tolist()  # eqs. (v1), (v)
     limited = False
     if v_max is not None:
-        v, limited = limit_speed(np.array(v_l) if v is None else v, v_max)
-    elif v is None:
-        v = np.array(v_l)
-    return ControlOutput(v=v, dph=dph, e=np.array(e), avoid_active=active, speed_limited=limited)
+        speed = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+        if speed > v_max:  # as limit_speed
+            v, limited = [x * (v_max / speed) for x in v], True
+    return v, dph, e, active, limited
 
 
 # --- semi-implicit discretisation (scenario [controller] discretisation = "semi-implicit") ----------
