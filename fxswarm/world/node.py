@@ -9,10 +9,13 @@ It records the whole run for ``trajectory.npz``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from fxswarm.core import bus as topics
 from fxswarm.core.messages import Clock, Command, Message, Sense, WorldState
+from fxswarm.core.motion import Static
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.plan import degraded_limits
 
@@ -57,10 +60,17 @@ class WorldNode:
         self.expects = None  # lock-step: expects("agent:<id>", tick) -> bool, set by a fault filter
         self.limits = degraded_limits(scenario)
         self.silent_s = np.zeros(n)  # how long each robot's agent has been silent, s
+        self._anyone_silent = False  # whether silent_s has a non-zero entry (fast path when not)
         self.held_at_zero = np.zeros(n, dtype=int)  # ticks a silent robot was held at zero velocity
         self.flag_ticks = np.zeros((n, 8), dtype=int)  # ticks each Command.flags bit was set, per robot
         self._heard: set[int] = set()  # real time: robots heard since the last advance
         self._sensed: tuple | None = None
+        # Static obstacles never move: their (read-only) state is built once, not every tick.
+        self._fixed_obstacles = None
+        if all(isinstance(o, Static) for o in scenario.obstacles):
+            self._fixed_obstacles = self.obstacle_state(0.0)
+            for a in self._fixed_obstacles:
+                a.setflags(write=False)
         self.record = record
         if record:
             self.rec_t = np.arange(ticks) * scenario.dt
@@ -166,9 +176,12 @@ class WorldNode:
     def _note_silence(self, heard, dt: float) -> None:
         """Robots not ``heard`` this step keep their last command until silent longer than
         the limit; then the world holds them at zero velocity (a robot whose agent died stops)."""
+        if len(heard) == self.sc.n and not self._anyone_silent:
+            return  # the usual case: everyone heard and nobody was silent, so nothing changes
         silent = np.ones(self.sc.n, dtype=bool)
         silent[[r - 1 for r in heard]] = False
         self.silent_s = np.where(silent, self.silent_s + dt, 0.0)
+        self._anyone_silent = bool(silent.any())
         hold = silent & (self.silent_s > self.limits.silent_hold + 1e-9)
         if hold.any():
             self.v[hold] = 0.0
@@ -176,7 +189,7 @@ class WorldNode:
 
     def _sense_now(self):
         t = self.t
-        obstacles, obstacle_v = self.obstacle_state(t)
+        obstacles, obstacle_v = self._fixed_obstacles or self.obstacle_state(t)
         po, vo, dist, _, obstacle_dist = nearest_objects(self.p, self.v, obstacles, obstacle_v)
         self._sensed = (obstacles, dist, obstacle_dist)
         return po, vo, dist
@@ -186,11 +199,12 @@ class WorldNode:
         po, vo, dist = self._sense_now()
         self.seq += 1
         out: list[topics.Outgoing] = [(topics.CLOCK, Clock("world", 0, self.seq, k, t))]
-        for i, r in enumerate(self.sc.robots):
-            has = bool(np.isfinite(dist[i]))
+        # Rows of fresh arrays (one copy of p, po and vo are new), and plain floats for the test:
+        # numpy calls per robot cost more than the work (issue 2).
+        for r, p_i, po_i, vo_i, dist_i in zip(self.sc.robots, self.p.copy(), po, vo, dist.tolist()):
+            has = math.isfinite(dist_i)
             out.append((topics.sense_topic(r.id), Sense(
-                "world", 0, self.seq, k, t, r.id, self.p[i].copy(),
-                po[i] if has else None, vo[i] if has else None)))  # po, vo: fresh arrays
+                "world", 0, self.seq, k, t, r.id, p_i, po_i if has else None, vo_i if has else None)))
         return out
 
     def _state_message(self) -> topics.Outgoing:
