@@ -53,6 +53,7 @@ class AgentNode:
             weights.append(scenario.b[robot_id - 1])
         self.weights = np.array(weights, dtype=float)
         self._weight_list = self.weights.tolist()
+        self._estimate_topic, self._command_topic = topics.estimate_topic(robot_id), topics.command_topic(robot_id)
         self.sense: Sense | None = None
         self.estimates: dict[int, Estimate] = {}  # latest held per neighbour (zero-order hold)
         self.leader: LeaderState | None = None
@@ -135,7 +136,7 @@ class AgentNode:
     def estimate_message(self, tick: int, t: float) -> topics.Outgoing:
         self.seq_estimate += 1
         msg = Estimate("agent", self.id, self.seq_estimate, tick, t, self.id, self.ph.copy())
-        return topics.estimate_topic(self.id), msg
+        return self._estimate_topic, msg
 
     def held_estimates(self, fresh_by: float = -np.inf) -> tuple[np.ndarray, np.ndarray]:
         """The estimates this robot holds, shape (m, 3), neighbours in ascending id then the
@@ -215,7 +216,7 @@ class AgentNode:
             self.since_sense_s += dt
         cmd = Command("agent", self.id, self.seq_command, s.tick, s.t, self.id, np.array(v), ph_used, avoid_active,
                       flags)
-        return topics.command_topic(self.id), cmd
+        return self._command_topic, cmd
 
     def _start_extrapolating(self, now: float) -> None:
         """Hearing nobody from ``now`` (s) on: go back to the step at the newest input's time and
