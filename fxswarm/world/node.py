@@ -9,6 +9,7 @@ It records the whole run for ``trajectory.npz``.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -34,10 +35,20 @@ def nearest_objects(p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, obstacl
     diff = p[:, None, :] - objects[None, :, :]
     dist = np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
     m = len(obstacles)
-    dist[np.arange(n), m + np.arange(n)] = np.inf  # a robot is not its own nearest object
+    rows, own = _self_index(n, m)
+    dist[rows, own] = np.inf  # a robot is not its own nearest object
     obstacle_dist = dist[:, :m].min(axis=1) if m else np.full(n, np.inf)
     k = dist.argmin(axis=1)
-    return objects[k], object_v[k], dist[np.arange(n), k], k < m, obstacle_dist
+    return objects[k], object_v[k], dist[rows, k], k < m, obstacle_dist
+
+
+@functools.lru_cache(maxsize=8)
+def _self_index(n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(arange(n), m + arange(n))``, read-only: built once per swarm shape, not every tick."""
+    rows, own = np.arange(n), m + np.arange(n)
+    rows.setflags(write=False)
+    own.setflags(write=False)
+    return rows, own
 
 
 class WorldNode:
