@@ -106,25 +106,38 @@ def estimator_rate(
 
 def _estimator_rate_floats(ph: list[float], rows: list[list[float]], ws: list[float], gains: EstimatorGains) -> list[float]:
     """:func:`estimator_rate` on Python floats (m >= 1): per-axis sums, eq. (11)."""
-    # Python floats on 3-vectors: each numpy call costs ~1 us, more than the arithmetic itself.
+    # Python floats on 3-vectors: each numpy call costs ~1 us, more than the arithmetic itself;
+    # the three axes are unrolled (same sums in the same order as a loop over axes).
     a1, a2 = gains.r3 / gains.r4, gains.r5 / gains.r6
     K1, K2, K3 = gains.K1, gains.K2, gains.K3
+    copysign = math.copysign
     pairwise = gains.power != "aggregate"
-    out = [0.0, 0.0, 0.0]
-    for k in range(3):
-        x = ph[k]
-        s1 = s2 = s3 = 0.0
-        for w, row in zip(ws, rows):
-            d = x - row[k]
-            s3 += w * d
-            if pairwise and d:
-                ad = abs(d)
-                s1 += math.copysign(w * ad**a1, d)
-                s2 += math.copysign(w * ad**a2, d)
+    x0, x1, x2 = ph
+    p0 = p1 = p2 = q0 = q1 = q2 = e0 = e1 = e2 = 0.0  # per axis: the r3/r4 sum, the r5/r6 sum, eta3
+    for w, (y0, y1, y2) in zip(ws, rows):
+        d0, d1, d2 = x0 - y0, x1 - y1, x2 - y2
+        e0 += w * d0
+        e1 += w * d1
+        e2 += w * d2
+        if pairwise:  # w * sig(d, r3/r4), w * sig(d, r5/r6)
+            if d0:
+                ad = abs(d0)
+                p0 += copysign(w * ad**a1, d0)
+                q0 += copysign(w * ad**a2, d0)
+            if d1:
+                ad = abs(d1)
+                p1 += copysign(w * ad**a1, d1)
+                q1 += copysign(w * ad**a2, d1)
+            if d2:
+                ad = abs(d2)
+                p2 += copysign(w * ad**a1, d2)
+                q2 += copysign(w * ad**a2, d2)
+    out = []
+    for s1, s2, s3 in ((p0, q0, e0), (p1, q1, e1), (p2, q2, e2)):
         if not pairwise and s3:
             ad = abs(s3)
-            s1, s2 = math.copysign(ad**a1, s3), math.copysign(ad**a2, s3)
-        out[k] = -K1 * s1 - K2 * s2 - (K3 if s3 > 0.0 else -K3 if s3 < 0.0 else 0.0)  # eq. (11)
+            s1, s2 = copysign(ad**a1, s3), copysign(ad**a2, s3)
+        out.append(-K1 * s1 - K2 * s2 - (K3 if s3 > 0.0 else -K3 if s3 < 0.0 else 0.0))  # eq. (11)
     return out
 
 
