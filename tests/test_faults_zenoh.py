@@ -11,14 +11,15 @@ import msgpack
 import numpy as np
 import pytest
 
-from fxswarm.core.messages import (Clock, Command, Estimate, LeaderState, Message, Sense, WireError, WorldState,
-                                   decode, encode)
+from fxswarm.core.messages import (SCHEMA_VERSION, Clock, Command, Estimate, LeaderState, Message, Sense, WireError,
+                                   WorldState, decode, encode)
 from fxswarm.core.metrics import formation_errors
 from fxswarm.core.scenario import load
 from fxswarm.runtime.output import load_trajectory
 from fxswarm.runtime.sim import Simulation
 from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions, check_sender
 from fxswarm.testing import dump_toml
+from fxswarm.world.node import directed_links
 
 PAPER_FAST = Path(__file__).resolve().parents[1] / "configs" / "paper-fast.toml"
 
@@ -115,7 +116,9 @@ def garbage_for(topic: str, sample: Message, rng: np.random.Generator) -> list[b
         without = dict(base)
         del without[key]
         out.append(msgpack.packb(without))
-    out += [msgpack.packb({**base, "schema": v}) for v in (0, 2, 999, "1")]
+    out += [msgpack.packb({**base, "schema": v}) for v in (0, SCHEMA_VERSION - 1, SCHEMA_VERSION + 1, 999, "1")]
+    if "link_age" in base:  # one link too many on one side
+        out.append(msgpack.packb({**base, "link_age": base["link_age"] + [0]}))
     if "robot" in base:
         out.append(msgpack.packb({**base, "robot": 99, "sender": 99}))  # a stranger's robot id
     if "sender" in base:
@@ -129,13 +132,16 @@ def samples(sc) -> dict[str, Message]:
         "clock": Clock("world", 0, 1, 1, 0.01),
         "leader/state": LeaderState("leader", 0, 1, 1, 0.01, v),
         "world/state": WorldState("world", 0, 1, 1, 0.01, np.zeros((sc.n, 3)), np.zeros((sc.n, 3)),
-                                  np.zeros((sc.n, 3)), np.zeros(sc.n), np.zeros(sc.n, dtype=bool), np.zeros((4, 3))),
+                                  np.zeros((sc.n, 3)), np.zeros(sc.n), np.zeros(sc.n, dtype=bool), np.zeros((4, 3)),
+                                  np.zeros(len(directed_links(sc)), dtype=np.int64),
+                                  np.zeros(len(directed_links(sc)), dtype=np.int64)),
         "alive/agent/1": Clock("world", 0, 1, 1, 0.01),
     }
     for r in sc.robots:
         out[f"world/sense/{r.id}"] = Sense("world", 0, 1, 1, 0.01, r.id, v, v, v)
         out[f"agent/{r.id}/estimate"] = Estimate("agent", r.id, 1, 1, 0.01, r.id, v)
-        out[f"agent/{r.id}/cmd"] = Command("agent", r.id, 1, 1, 0.01, r.id, v, v, False)
+        m = len(sc.neighbours(r.id)) + sc.is_pinned(r.id)
+        out[f"agent/{r.id}/cmd"] = Command("agent", r.id, 1, 1, 0.01, r.id, v, v, False, 0, (0,) * m, (0,) * m)
     return out
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections import deque
 import numpy as np
 
+from fxswarm.agent.links import InLinks
 from fxswarm.core import bus as topics
 from fxswarm.core.control import robot_control, robot_control_floats
 from fxswarm.core.messages import Command, Estimate, LeaderState, Message, Sense
@@ -72,6 +73,8 @@ class AgentNode:
         # were current, not from an estimate that spent the staleness window chasing held values.
         self.history: deque = deque(maxlen=int(np.ceil(self.limits.staleness / scenario.dt)) + 8)
         self.degraded_ticks = {name: 0 for name in FLAG_NAMES.values()}
+        # Link health as this robot sees it, reported in each Command (neighbours, then the leader).
+        self.in_links = InLinks(list(self.neighbour_ids) + ([0] if self.pinned else []))
 
     # --- wiring -------------------------------------------------------------------------
 
@@ -97,12 +100,15 @@ class AgentNode:
                 out.append(self.estimate_message(msg.tick, msg.t))
         elif isinstance(msg, Estimate):
             if msg.robot in self.neighbour_ids and msg.robot != self.id:
+                self.in_links.heard(msg.robot, msg.seq, msg.tick)
                 held = self.estimates.get(msg.robot)
                 if held is None or msg.tick >= held.tick:
                     self.estimates[msg.robot] = msg
         elif isinstance(msg, LeaderState):
-            if self.pinned and (self.leader is None or msg.tick >= self.leader.tick):
-                self.leader = msg
+            if self.pinned:
+                self.in_links.heard(0, msg.seq, msg.tick)
+                if self.leader is None or msg.tick >= self.leader.tick:
+                    self.leader = msg
         if self.lockstep and self.ready():
             out.append(self.act(self.sc.dt))
         return out
@@ -215,8 +221,21 @@ class AgentNode:
         if not self.lockstep:
             self.since_sense_s += dt
         cmd = Command("agent", self.id, self.seq_command, s.tick, s.t, self.id, np.array(v), ph_used, avoid_active,
-                      flags)
+                      flags, self.link_ages(now), tuple(self.in_links.drops))
         return self._command_topic, cmd
+
+    def link_ages(self, now: float) -> tuple[int, ...]:
+        """Per in-link (neighbours in ascending id, then the leader): how many ticks old the held
+        message is at ``now`` (s); with nothing held, ticks since tick -1. Lock-step: the sensing's
+        tick less the held message's (the same, in integers: every node times tick k at k * dt)."""
+        held = [self.estimates.get(j) for j in self.neighbour_ids]
+        if self.pinned:
+            held.append(self.leader)
+        if self.lockstep:  # per act, per robot: plain integer arithmetic
+            k = self.sense.tick
+            return tuple([k + 1 if h is None else (k - h.tick if h.tick < k else 0) for h in held])
+        dt = self.sc.dt
+        return tuple(round(now / dt) + 1 if h is None else max(0, round((now - h.t) / dt)) for h in held)
 
     def _start_extrapolating(self, now: float) -> None:
         """Hearing nobody from ``now`` (s) on: go back to the step at the newest input's time and

@@ -8,17 +8,24 @@ what was wrong otherwise; a node never sees an invalid message.
 
 Vectors travel as lists of 3 floats (msgpack keeps float64 exact, so a
 lock-step run over the wire is bit-identical to the in-memory one).
+
+Link health travels with the data it is about: each ``Command`` carries,
+per link into its robot (neighbours in ascending id, then the leader if
+pinned), the age in ticks of the estimate held and how many of that
+sender's messages the robot missed; the world gathers them into
+``WorldState`` per directed link (order: :func:`fxswarm.world.node.directed_links`).
+Schema 2 added these fields.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 
 import msgpack
 import numpy as np
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: link health (link_age, link_drops) in Command and WorldState
 
 #: Largest magnitude accepted for a coordinate or velocity on the wire (m,
 #: m/s): beyond it a value is a corruption, not a robot.
@@ -77,6 +84,9 @@ class Command(Message):
     ph: np.ndarray  # (3,) estimate the command was computed from
     avoid_active: bool
     flags: int = 0  # bit set of degraded modes (see fxswarm.agent.node)
+    # Per link into this robot, neighbours in ascending id then the leader if pinned:
+    link_age: tuple[int, ...] = ()  # ticks since the tick of the estimate held (none held: since tick -1)
+    link_drops: tuple[int, ...] = ()  # that sender's messages missed so far (sequence gaps seen)
 
 
 @dataclass(frozen=True)
@@ -89,6 +99,10 @@ class WorldState(Message):
     nearest: np.ndarray  # (n,) distance to the nearest object, m
     avoid: np.ndarray  # (n,) bool, avoidance active
     obstacles: np.ndarray  # (m, 3) obstacle positions
+    # Per directed link j -> i (order: fxswarm.world.node.directed_links), as robot i last reported
+    # it, its age grown by the ticks since that report:
+    link_age: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (L,) ticks
+    link_drops: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (L,) messages missed
 
 
 KINDS: dict[str, type[Message]] = {
@@ -98,12 +112,15 @@ KINDS: dict[str, type[Message]] = {
 _KIND_OF = {cls: name for name, cls in KINDS.items()}
 ROLES = ("world", "leader", "agent", "logger", "test")
 
-# Field types: "vec" (3,), "vec?" (3,) or None, "mat" (n, 3), "row" (n,), "int", "bool".
+# Field types: "vec" (3,), "vec?" (3,) or None, "mat" (n, 3), "row" (n,), "int", "bool",
+# "counts" (L,) non-negative integers as a tuple, "countrow" the same as an int64 array.
 _SHAPES: dict[str, str] = {
     "p": "vec", "po": "vec?", "vo": "vec?", "p0": "vec", "ph": "vec", "v": "vec",
-    "robot": "int", "avoid_active": "bool", "flags": "int",
+    "robot": "int", "avoid_active": "bool", "flags": "int", "link_age": "counts", "link_drops": "counts",
 }
-_STATE_SHAPES = {"p": "mat", "v": "mat", "ph": "mat", "nearest": "row", "avoid": "boolrow", "obstacles": "mat"}
+_STATE_SHAPES = {"p": "mat", "v": "mat", "ph": "mat", "nearest": "row", "avoid": "boolrow", "obstacles": "mat",
+                 "link_age": "countrow", "link_drops": "countrow"}
+_MAX_COUNT = 2**53
 
 
 def encode(msg: Message) -> bytes:
@@ -149,6 +166,10 @@ def _check(name: str, shape: str, value):
         if not isinstance(value, list) or not all(_finite_number(x) for x in value):
             raise WireError(f"field {name!r}: expected a list of finite numbers")
         return np.array(value, dtype=float)
+    if shape in ("counts", "countrow"):
+        if not isinstance(value, list) or not all(type(x) is int and 0 <= x <= _MAX_COUNT for x in value):
+            raise WireError(f"field {name!r}: expected a list of non-negative integers")
+        return tuple(value) if shape == "counts" else np.array(value, dtype=np.int64)
     if shape == "boolrow":
         if not isinstance(value, list) or not all(isinstance(x, bool) for x in value):
             raise WireError(f"field {name!r}: expected a list of booleans")
@@ -193,4 +214,6 @@ def decode(payload: bytes) -> Message:
         n = len(values["p"])
         if not all(len(values[k]) == n for k in ("v", "ph", "nearest", "avoid")):
             raise WireError("world state: arrays of different robot counts")
+    if "link_age" in values and len(values["link_age"]) != len(values["link_drops"]):
+        raise WireError("link_age and link_drops: different link counts")
     return cls(**values)

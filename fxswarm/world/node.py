@@ -5,11 +5,17 @@ held; once all robots' commands for tick ``k`` are in (or :meth:`timeout`
 is called), it integrates ``p += dt * v``, records the tick and emits tick
 ``k+1``. Real time: :meth:`advance` integrates on the commands it holds.
 It records the whole run for ``trajectory.npz``.
+
+Link health: each robot's ``Command`` reports, per link into it, the age of
+the estimate it holds and the messages it missed; the world publishes them
+in ``WorldState`` per directed link (:func:`directed_links`), the age grown
+by the ticks since that robot's report (a silent robot's links age).
 """
 
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 
 import numpy as np
@@ -40,6 +46,18 @@ def nearest_objects(p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, obstacl
     obstacle_dist = dist[:, :m].min(axis=1) if m else np.full(n, np.inf)
     k = dist.argmin(axis=1)
     return objects[k], object_v[k], dist[rows, k], k < m, obstacle_dist
+
+
+def directed_links(sc: Scenario) -> list[tuple[int, int]]:
+    """The directed links ``(sender, receiver)`` in ``WorldState.link_*`` order: for each robot
+    ``i`` in ascending id, ``(j, i)`` for its neighbours ``j`` in ascending id, then ``(0, i)``
+    (the leader) if ``i`` is pinned. Robot ``i``'s ``Command.link_*`` are its run of this list."""
+    out = []
+    for r in sc.robots:
+        out += [(j, r.id) for j in sc.neighbours(r.id)]
+        if sc.is_pinned(r.id):
+            out.append((0, r.id))
+    return out
 
 
 @functools.lru_cache(maxsize=8)
@@ -82,6 +100,15 @@ class WorldNode:
             self._fixed_obstacles = self.obstacle_state(0.0)
             for a in self._fixed_obstacles:
                 a.setflags(write=False)
+        # Link health (see the module's docstring): each robot's last report and the tick it was for.
+        self.in_degree = [len(scenario.neighbours(r.id)) + scenario.is_pinned(r.id) for r in scenario.robots]
+        self._link_age: list[tuple[int, ...]] = [(0,) * m for m in self.in_degree]
+        self._link_drops: list[tuple[int, ...]] = [(0,) * m for m in self.in_degree]
+        self._link_tick = [-1] * n
+        self._in_degree = np.array(self.in_degree, dtype=np.int64)
+        self._links_key: tuple | None = None  # what the cached arrays were built from
+        self._links_cached: tuple[np.ndarray, np.ndarray] | None = None
+        self.link_reports_invalid = 0  # commands whose link reports had the wrong number of links
         self.record = record
         if record:
             self.rec_t = np.arange(ticks) * scenario.dt
@@ -147,6 +174,7 @@ class WorldNode:
             self.avoid[rid - 1] = cmd.avoid_active
             if cmd.flags:
                 self.flag_ticks[rid - 1] += (cmd.flags >> np.arange(8)) & 1
+            self._take_links(cmd)
         self._note_silence(self.commands, self.sc.dt)
         self.commands = {}
         out = [self._state_message()]
@@ -168,6 +196,7 @@ class WorldNode:
         self._heard.add(msg.robot)
         if msg.flags:
             self.flag_ticks[msg.robot - 1] += (msg.flags >> np.arange(8)) & 1
+        self._take_links(msg)
 
     def advance(self, dt: float) -> list[topics.Outgoing]:
         """Real time: record, integrate ``dt`` seconds on the held commands, emit the next tick."""
@@ -198,6 +227,32 @@ class WorldNode:
             self.v[hold] = 0.0
             self.held_at_zero += hold
 
+    def _take_links(self, cmd: Command) -> None:
+        """Hold robot ``cmd.robot``'s link report (one with the wrong number of links is counted, not held)."""
+        i = cmd.robot - 1
+        m = self.in_degree[i]
+        if len(cmd.link_age) != m or len(cmd.link_drops) != m:
+            self.link_reports_invalid += 1
+            return
+        self._link_age[i], self._link_drops[i], self._link_tick[i] = cmd.link_age, cmd.link_drops, cmd.tick
+
+    def link_health(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(age, drops)`` per directed link (:func:`directed_links` order), int64 (L,), at this
+        tick; read-only, and the same arrays as the last tick's while nothing changed (the usual
+        lock-step case: every robot reports zeros every tick)."""
+        k = self.tick
+        since = tuple([k - t if t < k else 0 for t in self._link_tick])  # ticks since each robot's report
+        key = (tuple(self._link_age), tuple(self._link_drops), since)
+        if key == self._links_key:
+            return self._links_cached
+        age = np.fromiter(itertools.chain.from_iterable(self._link_age), dtype=np.int64)
+        drops = np.fromiter(itertools.chain.from_iterable(self._link_drops), dtype=np.int64)
+        age += np.repeat(np.array(since, dtype=np.int64), self._in_degree)
+        age.setflags(write=False)
+        drops.setflags(write=False)
+        self._links_key, self._links_cached = key, (age, drops)
+        return age, drops
+
     def _sense_now(self):
         t = self.t
         obstacles, obstacle_v = self._fixed_obstacles or self.obstacle_state(t)
@@ -222,7 +277,7 @@ class WorldNode:
         obstacles, dist, _ = self._sensed if self._sensed is not None else self._sense_now()
         return topics.WORLD_STATE, WorldState(
             "world", 0, self.seq, self.tick, self.t, self.p.copy(), self.v.copy(), self.ph.copy(),
-            np.where(np.isfinite(dist), dist, -1.0), self.avoid.copy(), obstacles.copy())
+            np.where(np.isfinite(dist), dist, -1.0), self.avoid.copy(), obstacles.copy(), *self.link_health())
 
     def _record(self) -> None:
         k = self.tick
