@@ -51,7 +51,7 @@ def test_peek_header_reads_what_decode_would_accept():
     import msgpack
     import numpy as np
 
-    from fxswarm.core.messages import Estimate, WorldState, encode
+    from fxswarm.core.messages import SCHEMA_VERSION, Estimate, WorldState, encode
     from fxswarm.logger.peek import peek_header
 
     h = peek_header(encode(Estimate("agent", 3, 7, 6, 0.06, 3, np.ones(3))))
@@ -60,11 +60,13 @@ def test_peek_header_reads_what_decode_would_accept():
                        np.zeros(2, bool), np.zeros((0, 3)))
     assert peek_header(encode(state)).kind == "state"
     reordered = msgpack.packb({"t": 0.5, "p": [[1.0, 2.0, 3.0]], "tick": 2, "seq": 3, "sender": 0, "role": "world",
-                               "kind": "state", "schema": 1})
+                               "kind": "state", "schema": SCHEMA_VERSION})
     assert peek_header(reordered) == ("state", "world", 0, 3, 2, 0.5)
-    for junk in (b"", b"\xc1", msgpack.packb([1, 2]), msgpack.packb({"schema": 2, "kind": "estimate"}),
-                 msgpack.packb({"schema": 1, "kind": "estimate", "role": "agent", "sender": -1, "seq": 1,
+    for junk in (b"", b"\xc1", msgpack.packb([1, 2]), msgpack.packb({"schema": SCHEMA_VERSION, "kind": "estimate"}),
+                 msgpack.packb({"schema": SCHEMA_VERSION, "kind": "estimate", "role": "agent", "sender": -1, "seq": 1,
                                 "tick": 1, "t": 0.0}),
-                 msgpack.packb({"schema": 1, "kind": "estimate", "role": "agent", "sender": 1, "seq": 1,
+                 msgpack.packb({"schema": SCHEMA_VERSION - 1, "kind": "estimate", "role": "agent", "sender": 1, "seq": 1,
+                                "tick": 1, "t": 0.0}),
+                 msgpack.packb({"schema": SCHEMA_VERSION, "kind": "estimate", "role": "agent", "sender": 1, "seq": 1,
                                 "tick": 1, "t": float("nan")})):
         assert peek_header(junk) is None

@@ -25,6 +25,7 @@ def test_launcher_runs_the_logger_and_its_recording_matches_the_trajectory(launc
     logger = summary["processes"]["logger-0"]
     assert logger["stop_reason"] == "world gone", logger
     assert logger["invalid"] == 0
+    assert logger["logger"]["nice"] >= 10  # the swarm's processes first, on a busy machine
     # Nothing dropped on a quiet machine, and whatever was dropped is counted, not lost silently.
     frames = logger["logger"]["frames"]
     ticks = summary["ticks"]
@@ -46,3 +47,23 @@ def test_launcher_runs_the_logger_and_its_recording_matches_the_trajectory(launc
     if summary["missed_ticks"] == 0:
         assert np.all(np.array(series[style.LINK_STALE]["Scalars:scalars"]) == 0)
     assert len(series[style.TICK_RATE]["Scalars:scalars"]) > 0
+
+
+@pytest.mark.zenoh
+def test_the_logger_process_shows_a_drop_made_at_a_receivers_inbox(launch_swarm):
+    """Over Zenoh, robot 3's inbox drops robot 2's estimates for 0.5 s (a partition of 2 -> 3):
+    the logger, which hears only world/state, records exactly those drops on edge 2-3."""
+    swarm = launch_swarm(PAPER_FAST, logger=True, duration=1.5,
+                         **{"faults.partitions": [{"start": 0.5, "end": 1.0, "links": ["agent:2->agent:3"],
+                                                   "kinds": ["estimate"]}]})
+    summary = swarm.wait_done(timeout=120)
+    dropped = summary["faults"]["links"]["agent:2->agent:3/estimate"]["dropped"]
+    assert dropped == 50
+    logger = summary["processes"]["logger-0"]
+    assert logger["logger"]["link_drops_seen"] == dropped and logger["logger"]["link_unreported_frames"] == 0
+    series = read_series(swarm.out / "recording.rrd")
+    drops = np.array(series[style.LINK_DROPS]["Scalars:scalars"])  # (frames, edges)
+    names = ["1-2", "1-6", "2-3", "3-4", "4-5", "5-6", "L-1", "L-4"]  # paper-fast: a ring, 1 and 4 pinned
+    e = names.index("2-3")
+    assert drops.shape[1] == len(names)
+    assert drops[-1, e] == dropped and np.delete(drops[-1], e).sum() == 0

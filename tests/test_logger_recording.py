@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from fxswarm.core.messages import Estimate, LeaderState
+from fxswarm.core.messages import Estimate, LeaderState, WorldState
 from fxswarm.core.metrics import estimate_errors, formation_errors
 from fxswarm.core.scenario import load
 from fxswarm.logger import style
@@ -18,6 +18,7 @@ from fxswarm.logger.replay import record_run, world_states
 from fxswarm.logger.sinks import OutputError, Outputs, open_recording, parse_outputs
 from fxswarm.runtime.output import write_run
 from fxswarm.runtime.sim import Simulation
+from fxswarm.world.node import directed_links
 
 ROOT = Path(__file__).resolve().parents[1]
 DURATION = 3.0  # s: long enough for avoidance-free formation motion, short enough to be quick
@@ -152,34 +153,93 @@ def test_replay_finds_the_scenario_from_the_summary(tmp_path, scenario):
     assert style.FORMATION_ERROR in entities(path)
 
 
-def test_link_health_counts_sequence_gaps_and_staleness(scenario):
+def _state(sc, tick: int, age, drops) -> WorldState:
+    n = sc.n
+    z = np.zeros((n, 3))
+    return WorldState("world", 0, tick + 1, tick, tick * sc.dt, z, z, z, np.ones(n), np.zeros(n, bool),
+                      np.zeros((0, 3)), np.asarray(age, dtype=np.int64), np.asarray(drops, dtype=np.int64))
+
+
+def test_link_health_from_the_robots_reports_per_edge(scenario):
     links = LinkHealth(scenario)
     assert links.names[:2] == ["1-2", "1-6"] and links.names[-2:] == ["L-1", "L-4"]
-    for tick in range(5):
-        for robot in range(1, 7):
-            if robot == 3 and tick in (2, 3):  # robot 3 silent for two ticks: its seq skips two
-                continue
-            links.heard(robot, tick + 1 if robot != 3 else tick + 1, tick, tick * 0.01)
-        links.heard(0, tick + 1, tick, tick * 0.01)
-    bad, drops, stale = links.at(4, 0.04, stale_ticks=2, recent_drop_s=1.0)
+    directed = directed_links(scenario)
+    zero = np.zeros(len(directed), dtype=np.int64)
+    bad, drops, stale = links.at(_state(scenario, 0, zero, zero), stale_ticks=2, recent_drop_s=1.0)
+    assert not bad.any() and not drops.any() and not stale.any()
+    # Robot 3 missed two of robot 2's estimates (2 -> 3 only); robot 4's leader estimate is 5 ticks old.
+    age, dropped = zero.copy(), zero.copy()
+    dropped[directed.index((2, 3))] = 2
+    age[directed.index((0, 4))] = 5
+    bad, drops, stale = links.at(_state(scenario, 4, age, dropped), stale_ticks=2, recent_drop_s=1.0)
     by_name = dict(zip(links.names, zip(bad, drops, stale)))
-    assert by_name["2-3"][1] == 2 and by_name["3-4"][1] == 2 and by_name["1-2"][1] == 0
-    assert by_name["2-3"][0] and not by_name["1-2"][0]
-    # Everyone goes silent: after stale_ticks, every link is stale.
-    bad, _, stale = links.at(8, 0.08, stale_ticks=2, recent_drop_s=0.0)
-    assert bad.all() and (stale >= 1).all()
+    assert by_name["2-3"] == (True, 2, 0) and by_name["L-4"] == (True, 0, 1)
+    assert not any(b for name, (b, _, _) in by_name.items() if name not in ("2-3", "L-4"))
+    # A drop stays red for recent_drop_s; the count stays.
+    bad, drops, _ = links.at(_state(scenario, 200, zero, dropped), stale_ticks=2, recent_drop_s=1.0)
+    assert not bad.any() and drops[links.names.index("2-3")] == 2
+    # The other direction 3 -> 2 ages: the undirected edge is stale if either direction is.
+    age = zero.copy()
+    age[directed.index((3, 2))] = 3
+    bad, _, stale = links.at(_state(scenario, 201, age, dropped), stale_ticks=2, recent_drop_s=1.0)
+    assert bad[links.names.index("2-3")] and bad.sum() == 1 and stale[links.names.index("2-3")] == 1
 
 
-def test_recorder_takes_estimates_and_leader_without_logging(scenario, tmp_path):
+def test_recorder_ignores_estimates_and_takes_world_states(scenario, tmp_path):
     rec, _ = open_recording(Outputs(file=tmp_path / "r.rrd"), recording_id="t")
     recorder = SwarmRecorder(scenario, rec)
     assert not recorder.take("agent/1/estimate", Estimate("agent", 1, 1, 0, 0.0, 1, np.zeros(3)))
     assert not recorder.take("leader/state", LeaderState("leader", 0, 1, 0, 0.0, np.zeros(3)))
-    assert recorder.links.last_tick[1] == 0 and recorder.links.last_tick[0] == 0
+    assert recorder.frames == 0
     state = next(world_states(_one_tick_trajectory(scenario)))
     assert recorder.take("world/state", state) and recorder.frames == 1
     assert not recorder.take("world/state", state)  # same time again: inside the rate period
+    assert recorder.links.unreported == 1  # rebuilt from a trajectory: no link report
     recorder.close()
+
+
+def test_recorder_subscribes_to_the_world_state_only():
+    from fxswarm.core import bus as topics
+    from fxswarm.logger.recorder import RECORDER_TOPICS
+
+    assert RECORDER_TOPICS == (topics.WORLD_STATE,)
+
+
+def test_a_drop_at_a_receivers_inbox_shows_on_that_edge_in_the_recording(tmp_path):
+    """A partition cutting robot 2's estimates at robot 3's inbox for 1 s: the recording's drop
+    series for edge 2-3 ends at the inbox's drop count, every other edge at 0, and 2-3 alone is red."""
+    import tomllib
+
+    from fxswarm.core.scenario import parse
+
+    data = tomllib.loads((ROOT / "configs/paper-fast.toml").read_text())
+    data["scenario"]["duration"] = 3.0
+    data["faults"] = {"partitions": [{"start": 1.0, "end": 2.0, "links": ["agent:2->agent:3"], "kinds": ["estimate"]}]}
+    sc = parse(data, "paper-fast.toml+partition")
+    sim = Simulation(sc)
+    rrd = tmp_path / "partition.rrd"
+    rec, _ = open_recording(Outputs(file=rrd), recording_id="test-partition")
+    recorder = SwarmRecorder(sc, rec, RecorderOptions(rate_hz=20.0))
+    recorder.start()
+    attach(sim.bus, recorder)
+    summary = sim.run()
+    recorder.close()
+    dropped = summary["faults"]["links"]["agent:2->agent:3/estimate"]["dropped"]
+    assert dropped == 100
+    series = read_series(rrd)
+    names = recorder.links.names
+    e = names.index("2-3")
+    drops = np.array(series[style.LINK_DROPS]["Scalars:scalars"])  # (frames, edges)
+    assert drops[-1, e] == dropped and np.delete(drops[-1], e).sum() == 0
+    t = series[style.LINK_DROPS]["t"]
+    assert drops[t < 1.0, e].max() == 0
+    stale = np.array(series[style.LINK_STALE]["Scalars:scalars"])
+    assert stale[-1, e] > 10 and np.delete(stale[-1], e).sum() == 0
+    colours = np.array(series[style.EDGES]["LineStrips3D:colors"])  # (frames, edges)
+    during = (t > 1.1) & (t < 1.9)
+    assert np.all(colours[during, e] == style.LINK_BAD)
+    assert np.all(np.delete(colours, e, axis=1) == style.LINK_OK)
+    assert np.all(colours[t < 0.99, e] == style.LINK_OK)
 
 
 def _one_tick_trajectory(sc):
@@ -278,11 +338,3 @@ def test_moving_obstacles_move_in_the_recording(scenario, tmp_path):
     centres = np.array(series["Ellipsoids3D:centers"])
     np.testing.assert_allclose(centres, traj["obstacles"][k], atol=1e-4)
     assert centres[-1, 0, 0] > centres[0, 0, 0] + 0.4  # it moved along x
-
-
-def test_link_health_counts_drops_among_messages_taken_in_groups(scenario):
-    links = LinkHealth(scenario)
-    links.heard(2, seq=4, tick=3, t=0.03, count=4)  # the first four, seen as one group: no drop
-    links.heard(2, seq=10, tick=9, t=0.09, count=4)  # six numbers later, four arrived: two lost
-    links.heard(2, seq=11, tick=10, t=0.10)
-    assert links.drop_count[2] == 2 and links.last_tick[2] == 10

@@ -2,10 +2,10 @@
 
 Layers, like the nodes (STYLE.md, sans I/O):
 
-- :mod:`.recorder` -- :class:`SwarmRecorder`, the core: takes bus messages
-  (``WorldState``, ``Estimate``, ``LeaderState``, ``Clock``), keeps the link
-  health bookkeeping, and writes rate-limited, column-batched frames to a
-  ``rerun.RecordingStream``. No transport, no threads.
+- :mod:`.recorder` -- :class:`SwarmRecorder`, the core: takes the world's
+  ``WorldState`` messages (link health, as the robots measured it at their
+  inboxes, rides in them), and writes rate-limited, column-batched frames to
+  a ``rerun.RecordingStream``. No transport, no threads.
 - :mod:`.style` -- entity paths, colours, the default blueprint.
 - :mod:`.sinks` -- opens a recording on the outputs named by ``--rerun``.
 - :mod:`.replay` -- a recording from a finished run folder (``fxswarm sim``

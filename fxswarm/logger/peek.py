@@ -1,8 +1,7 @@
 """Reading only a message's header off the wire: what the logger needs from most messages.
 
-The logger uses an estimate or a leader state only for its sender, sequence
-number and tick (link health), and logs only one world state in several
-(the log rate). :func:`fxswarm.core.messages.decode` validates every field
+The logger logs only one world state in several (the log rate): for the
+others it needs only the time. :func:`fxswarm.core.messages.decode` validates every field
 in Python, which for a ``WorldState`` costs tens of times what msgpack's C
 unpacker takes to read the map; so the logger unpacks, checks the header as
 strictly as ``decode`` would, and decodes fully only what it will draw.

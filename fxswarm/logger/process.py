@@ -1,16 +1,15 @@
 """``fxswarm logger CONFIG --swarm NAME --out DIR --rerun file,grpc,...``: the swarm to Rerun, over Zenoh.
 
-One more process on the bus. It subscribes to ``world/state``,
-``leader/state`` and ``agent/*/estimate`` with its *own* Zenoh callbacks,
-which only drop the raw payload and its arrival time into a bounded ring
+One more process on the bus. It subscribes to ``world/state`` alone (one
+message per tick: the world's truth, with the link health the robots
+measured at their inboxes) with its *own* Zenoh callback, which only drops
+the raw payload and its arrival time into a bounded ring
 (:class:`~fxswarm.logger.inbox.Inbox`): the bus never waits on the logger,
 and when the logger falls behind it loses the oldest messages and counts
-them. The main thread decodes, validates (as the Zenoh bus does) and hands
-messages to the :class:`~fxswarm.logger.recorder.SwarmRecorder`: of the
-estimates and leader states that arrive between two drawn frames it reads
-only the latest header per sender (all link health needs), of the world states
-the log rate skips only the header (:mod:`.peek`), and it fully decodes
-only the world states it draws.
+them. The main thread reads the header of each state (:mod:`.peek`); the
+log rate skips most of them there, and only the states it draws are
+decoded and validated in full (as the Zenoh bus does) and handed to the
+:class:`~fxswarm.logger.recorder.SwarmRecorder`.
 
 It says it is alive (``alive/logger/0``) only once it is subscribed and the
 recording is open, so a launcher that waits for it loses no tick. It ends
@@ -21,6 +20,7 @@ SIGINT/SIGTERM, and always closes the recording so the ``.rrd`` is complete.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 import uuid
@@ -41,13 +41,8 @@ SETTLE_S = 0.3  # after the world leaves: wait this long for samples still in fl
 
 
 def _belongs(topic: str, h: Header) -> bool:
-    """The header is the kind, role and robot its key promises (as ``zenoh_bus.check_sender``)."""
-    if topic == topics.WORLD_STATE:
-        return h.kind == "state" and h.role == "world"
-    if topic == topics.LEADER_STATE:
-        return h.kind == "leader" and h.role == "leader"
-    parts = topic.split("/")  # agent/<i>/estimate
-    return h.kind == "estimate" and h.role == "agent" and len(parts) == 3 and parts[1] == str(h.sender)
+    """The header is the kind and role its key promises (as ``zenoh_bus.check_sender``)."""
+    return topic == topics.WORLD_STATE and h.kind == "state" and h.role == "world"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -62,6 +57,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--inbox", type=int, default=4096, metavar="N",
                    help="ring buffer size, messages; beyond it the oldest are dropped and counted")
     g.add_argument("--recording-id", default=None, help="Rerun recording id (default: one per run)")
+    g.add_argument("--nice", type=int, default=10, metavar="N",
+                   help="lower the logger's CPU priority by N (default 10; 0: unchanged), so on a busy "
+                        "machine the swarm's processes run first and the logger catches up in their gaps")
 
 
 class LoggerProcess:
@@ -78,6 +76,9 @@ class LoggerProcess:
         except (OutputError, ValueError) as exc:
             print(f"fxswarm logger: {exc}", file=sys.stderr)
             raise SystemExit(2) from None
+        # Before the session and the recording start their threads: Linux priorities are per
+        # thread, and new threads inherit their creator's.
+        self.nice = os.nice(max(0, args.nice)) if args.nice else os.nice(0)
         self.proc = RoleProcess("logger", 0, self.sc, args)
         self.invalid = 0
         self._subscribers = []  # kept referenced: a dropped subscriber stops delivering
@@ -92,59 +93,32 @@ class LoggerProcess:
 
     def subscribe(self) -> None:
         bus = self.proc.bus
-        cut = len(bus.root) + 1
         put = self.inbox.put
         now = time.monotonic
 
         def on_sample(sample) -> None:  # Zenoh's thread: record the arrival, enqueue, return
-            put((str(sample.key_expr)[cut:], sample.payload.to_bytes(), now()))
+            put((sample.payload.to_bytes(), now()))
 
-        for pattern in RECORDER_TOPICS:
-            self._subscribers.append(bus.session.declare_subscriber(f"{bus.root}/{pattern}", on_sample))
+        (topic,) = RECORDER_TOPICS  # one exact key: every sample is a world state (checked on decode)
+        self._subscribers.append(bus.session.declare_subscriber(f"{bus.root}/{topic}", on_sample))
         self.proc.watch(["world/0"])
         self._cpu_at_start = time.process_time()  # start-up (imports, session) is not logging
         self._thread_at_start = time.thread_time()  # decoding and recording; the rest is Zenoh's threads
         bus.declare_alive("logger", 0)
 
     def drain(self, limit: int | None = DRAIN_BATCH) -> int:
-        """Handle queued messages in arrival order.
-
-        Estimates and leader states matter only for link health: per sender, only
-        the latest of those that arrived since the previous drawn frame is
-        unpacked (with the count of the others), so a frame sees every estimate
-        that arrived before it. Of the world states, only those the log rate
-        keeps are decoded in full.
-        """
+        """Handle queued world states in arrival order: the header of each, the whole of those drawn."""
         n = 0
         recorder = self.recorder
-        pending: dict[str, list] = {}  # topic -> [latest payload, how many]
-
-        def apply_pending() -> None:
-            for topic, (payload, count) in pending.items():
-                h = peek_header(payload)
-                if h is None or not _belongs(topic, h):
-                    self.invalid += 1
-                    continue
-                recorder.links.heard(h.sender if h.kind == "estimate" else 0, h.seq, h.tick, h.t, count)
-            pending.clear()
-
-        for topic, payload, wall in self.inbox.drain(limit):
+        topic = topics.WORLD_STATE
+        for payload, wall in self.inbox.drain(limit):
             n += 1
-            if topic != topics.WORLD_STATE:
-                held = pending.get(topic)
-                if held is None:
-                    pending[topic] = [payload, 1]
-                else:
-                    held[0] = payload
-                    held[1] += 1
-                continue
             h = peek_header(payload)
             if h is None or not _belongs(topic, h):
                 self.invalid += 1
             elif not recorder.due(h.t):
                 recorder.skipped += 1
             else:
-                apply_pending()  # everything that arrived before this frame, and nothing after
                 try:
                     msg = decode(payload)
                     check_sender(topic, msg)
@@ -152,7 +126,6 @@ class LoggerProcess:
                     self.invalid += 1
                     continue
                 recorder.take(topic, msg, wall)
-        apply_pending()
         recorder.dropped = self.inbox.dropped
         counters = self.proc.bus.counters  # the same counters every process reports in summary.json
         counters.received += n
@@ -186,7 +159,7 @@ class LoggerProcess:
             self.recorder.close(timeout_s=10.0)
         finally:
             extra = {"logger": {**self.recorder.counters(), "inbox_dropped": self.inbox.dropped,
-                                "invalid": self.invalid, "outputs": self.args.rerun,
+                                "invalid": self.invalid, "outputs": self.args.rerun, "nice": self.nice,
                                 "cpu_s": round(time.process_time(), 3),  # what logging cost this machine
                                 "cpu_s_running": round(time.process_time() - self._cpu_at_start, 3),
                                 "cpu_s_main_thread": round(time.thread_time() - self._thread_at_start, 3)}}

@@ -12,13 +12,16 @@ that tick); the leader and the desired slots come from the scenario's
 analytic paths at the state's time, as in ``core.metrics``, so the logged
 errors equal those computed from ``trajectory.npz``.
 
-Link health. The logger hears what the robots and the leader *publish*
-(``agent/*/estimate``, ``leader/state``). An edge i-j (or leader-i) is
-*stale* at a frame when either end's latest estimate is more than
-``stale_ticks`` ticks older than the world's tick, and a sender *drops* when
-its sequence numbers skip. Per-receiver inbox faults happen after
-publication, so the logger cannot see those: it sees the link as the
-network delivered it to the logger.
+Link health is measured where it matters, at the receiver: each robot
+reports in its ``Command``, per link into it, how old the estimate it holds
+is and how many of that sender's messages it missed (sequence gaps after its
+inbox, fault filters included); the world publishes these per directed link
+in ``WorldState.link_age`` / ``link_drops``. So the recorder needs nothing
+but the world's state: an edge i-j (or leader-i) is *stale* at a frame when
+either direction's estimate is more than ``stale_ticks`` ticks old, and
+*red* when stale or when either direction's drop count rose within
+``recent_drop_s`` simulated seconds. Its drop series is the sum of both
+directions' counts.
 """
 
 from __future__ import annotations
@@ -33,11 +36,12 @@ import numpy as np
 import rerun as rr
 
 from fxswarm.core import bus as topics
-from fxswarm.core.messages import Estimate, LeaderState, Message, WorldState
+from fxswarm.core.messages import Message, WorldState
 from fxswarm.core.metrics import estimate_errors, formation_errors
 from fxswarm.core.scenario import Scenario
 from fxswarm.logger import style
 from fxswarm.logger.columns import send_rows, strips_array
+from fxswarm.world.node import directed_links
 
 
 @dataclass(frozen=True)
@@ -72,10 +76,12 @@ class RecorderOptions:
 
 
 class LinkHealth:
-    """Staleness and sequence gaps of what the robots and the leader publish.
+    """Staleness and drops per graph edge, from the robots' own reports in ``WorldState``.
 
-    Senders: robot ids 1..n, and 0 for the leader. Edges: the graph's
-    (i, j) with i < j, then (0, i) for each pinned robot i.
+    Edges: the graph's (i, j) with i < j, then (0, i) for each pinned robot i
+    (the leader's link). Each edge is made of its directed links (j -> i and
+    i -> j; the leader's only 0 -> i) in ``WorldState.link_*``
+    (:func:`fxswarm.world.node.directed_links` order).
     """
 
     def __init__(self, sc: Scenario) -> None:
@@ -83,52 +89,42 @@ class LinkHealth:
         self.edges = [(i, j) for i in ids for j in ids if i < j and sc.a[i - 1, j - 1] > 0]
         self.edges += [(0, i) for i in ids if sc.is_pinned(i)]
         self.names = [f"{'L' if i == 0 else i}-{j}" for i, j in self.edges]
-        # Plain lists: heard() runs for every estimate on the bus, and list item access is
-        # several times cheaper than numpy's; at() converts once per logged frame.
-        self.last_tick = [-1] * (sc.n + 1)  # index = sender id
-        self.last_seq = [0] * (sc.n + 1)
-        self.drop_count = [0] * (sc.n + 1)
-        self.last_drop_t = [-math.inf] * (sc.n + 1)
+        self.directed = directed_links(sc)
+        pos = {link: k for k, link in enumerate(self.directed)}
+        self._into_j = np.array([pos[(i, j)] for i, j in self.edges], dtype=int)  # i -> j (or leader -> j)
+        self._into_i = np.array([pos[(j, i)] if i else pos[(0, j)] for i, j in self.edges], dtype=int)
+        self._both = np.array([i > 0 for i, _ in self.edges], dtype=bool)  # a leader edge has one direction
+        self.last_drops = np.zeros(len(self.directed), dtype=np.int64)  # per directed link, as last reported
+        self.last_drop_t = np.full(len(self.directed), -math.inf)  # when a link's count last rose, s
         self.stale_frames = np.zeros(len(self.edges), dtype=np.int64)
-        self._a = np.array([i for i, _ in self.edges], dtype=int)
-        self._b = np.array([j for _, j in self.edges], dtype=int)
+        self.unreported = 0  # frames whose state carried no (or a wrongly sized) link report
 
     @property
     def drops(self) -> np.ndarray:
-        """(n + 1,) sequence numbers skipped per sender (index 0: the leader)."""
-        return np.array(self.drop_count, dtype=np.int64)
+        """(edges,) messages missed on each edge, both directions, as last reported."""
+        d = self.last_drops
+        return d[self._into_j] + np.where(self._both, d[self._into_i], 0)
 
-    def heard(self, sender: int, seq: int, tick: int, t: float, count: int = 1) -> None:
-        """``count`` messages arrived from ``sender``, the latest numbered ``seq`` (tick ``tick``, time ``t``).
-
-        The numbers skipped since the last call, less the ``count - 1`` not seen
-        individually, are drops. (The logger process reads only the latest of
-        several queued estimates of a sender: one unpack instead of several.)
-        """
-        if not 0 <= sender < len(self.last_tick):
-            return
-        last = self.last_seq[sender]
-        if seq > last:
-            missing = seq - last - count
-            if last and missing > 0:
-                self.drop_count[sender] += missing
-                self.last_drop_t[sender] = t
-            self.last_seq[sender] = seq
-        if tick > self.last_tick[sender]:
-            self.last_tick[sender] = tick
-
-    def at(self, tick: int, t: float, stale_ticks: int, recent_drop_s: float):
-        """Per edge at world tick ``tick``: ``(bad (bool), drops, stale_frames)``, each shape (edges,).
+    def at(self, state: WorldState, stale_ticks: int, recent_drop_s: float):
+        """Per edge at ``state``: ``(bad (bool), drops, stale_frames)``, each shape (edges,).
 
         Counts a stale frame for each edge stale now (call once per logged frame).
         """
-        old = (tick - np.array(self.last_tick)) > stale_ticks
-        recent = (t - np.array(self.last_drop_t)) <= recent_drop_s
-        drops = self.drops
-        stale = old[self._a] | old[self._b]
+        t = state.t
+        age, drops = state.link_age, state.link_drops
+        if len(age) != len(self.directed) or len(drops) != len(self.directed):
+            self.unreported += 1
+            age, drops = np.zeros(len(self.directed), dtype=np.int64), self.last_drops
+        rose = drops > self.last_drops
+        if rose.any():
+            self.last_drop_t[rose] = t
+        self.last_drops = np.asarray(drops, dtype=np.int64)
+        old = age > stale_ticks
+        stale = old[self._into_j] | old[self._into_i]
+        recent = (t - self.last_drop_t) <= recent_drop_s
         self.stale_frames += stale
-        bad = stale | recent[self._a] | recent[self._b]
-        return bad, drops[self._a] + drops[self._b], self.stale_frames.copy()
+        bad = stale | recent[self._into_j] | recent[self._into_i]
+        return bad, self.drops, self.stale_frames.copy()
 
 
 @dataclass
@@ -162,6 +158,7 @@ class SwarmRecorder:
         self.frames = 0  # frames logged
         self.skipped = 0  # world states not logged because of the rate limit
         self.dropped = 0  # messages lost before reaching the recorder (set by the inbox owner)
+        self.sink_error: str | None = None  # a sink that failed at close (e.g. a viewer gone)
         self._n = scenario.n
         self._next_due = -math.inf
         self._last_pace: tuple[float, int, float] | None = None  # (t, tick, wall) of the last timed frame
@@ -224,19 +221,16 @@ class SwarmRecorder:
     # --- messages -------------------------------------------------------------------------
 
     def take(self, topic: str, msg: Message, wall: float | None = None) -> bool:
-        """Take one bus message (``wall``: when it arrived, s); True if it produced a frame."""
-        kind = type(msg)
-        if kind is Estimate:
-            self.links.heard(msg.robot, msg.seq, msg.tick, msg.t)
-        elif kind is WorldState:
-            if msg.t + 1e-9 < self._next_due:
-                self.skipped += 1
-                return False
-            self.frame(msg, wall)
-            return True
-        elif kind is LeaderState:
-            self.links.heard(0, msg.seq, msg.tick, msg.t)
-        return False  # Clock: the pace is measured on the frames themselves
+        """Take one bus message (``wall``: when it arrived, s); True if it produced a frame.
+
+        Only ``WorldState`` matters (link health rides in it); anything else is ignored."""
+        if type(msg) is not WorldState:
+            return False
+        if msg.t + 1e-9 < self._next_due:
+            self.skipped += 1
+            return False
+        self.frame(msg, wall)
+        return True
 
     def due(self, t: float) -> bool:
         """Whether a world state at simulation time ``t`` would be logged (cheap; for inboxes)."""
@@ -248,7 +242,7 @@ class SwarmRecorder:
         t, k = s.t, s.tick
         self._next_due = (math.floor(t * o.rate_hz + 1e-6) + 1) / o.rate_hz
         if o.link_health:
-            bad, drops, stale = self.links.at(k, t, o.stale_ticks, o.recent_drop_s)
+            bad, drops, stale = self.links.at(s, o.stale_ticks, o.recent_drop_s)
         else:
             bad, drops, stale = np.zeros(len(self.links.edges), dtype=bool), None, None
         trail = None
@@ -349,39 +343,34 @@ class SwarmRecorder:
                   strips=strips_array(segments.reshape(-1, 3), np.full(len(t) * edges, 2)), colors=colours)
 
     def close(self, timeout_s: float = 30.0) -> None:
-        """Send what is buffered, wait for the sinks, disconnect."""
+        """Send what is buffered, wait for the sinks, disconnect.
+
+        A viewer that went away (a closed window) makes Rerun's flush raise; the
+        other sinks (the ``.rrd`` file) still get everything, so that is noted
+        in :attr:`sink_error`, not raised."""
         self.flush()
-        self.rec.flush(timeout_sec=timeout_s)
+        try:
+            self.rec.flush(timeout_sec=timeout_s)
+        except RuntimeError as exc:
+            self.sink_error = str(exc)
         self.rec.disconnect()
 
     def counters(self) -> dict[str, int]:
         return {"frames": self.frames, "skipped_by_rate": self.skipped, "dropped": self.dropped,
-                "link_drops_seen": int(self.links.drops.sum())}
+                "link_drops_seen": int(self.links.last_drops.sum()), "link_unreported_frames": self.links.unreported,
+                **({"sink_error": self.sink_error} if self.sink_error else {})}
 
 
-#: What the logger subscribes to, relative to the swarm prefix.
-RECORDER_TOPICS = (topics.WORLD_STATE, topics.LEADER_STATE, topics.estimate_topic("*"))  # type: ignore[arg-type]
+#: What the logger subscribes to, relative to the swarm prefix: the world's state alone (one
+#: message per tick; the robots' link reports ride in it).
+RECORDER_TOPICS = (topics.WORLD_STATE,)
 
 
 def attach(bus, recorder: SwarmRecorder) -> None:
-    """Subscribe ``recorder`` on an in-process bus (synchronous: for ``Simulation`` and tests).
-
-    Exact topics, no wildcard: the in-memory bus tests every wildcard against
-    every message, which would cost the whole swarm, not just the logger.
-    """
+    """Subscribe ``recorder`` on an in-process bus (synchronous: for ``Simulation`` and tests)."""
     clock = recorder.wall_clock
-    heard = recorder.links.heard
 
     def on_state(topic: str, msg: Message) -> None:
         recorder.take(topic, msg, clock())
 
-    def on_estimate(topic: str, msg: Message) -> None:  # every robot, every tick: keep it short
-        heard(msg.robot, msg.seq, msg.tick, msg.t)
-
-    def on_leader(topic: str, msg: Message) -> None:
-        heard(0, msg.seq, msg.tick, msg.t)
-
     bus.subscribe(topics.WORLD_STATE, on_state)
-    bus.subscribe(topics.LEADER_STATE, on_leader)
-    for r in recorder.sc.robots:
-        bus.subscribe(topics.estimate_topic(r.id), on_estimate)
