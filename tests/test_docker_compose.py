@@ -29,6 +29,8 @@ import numpy as np
 import pytest
 
 from fxswarm.core.metrics import formation_errors
+from fxswarm.core.scenario import load
+from fxswarm.faults.plan import DegradedLimits
 
 # The first test also waits for the images (from a clean machine: ~4 min base image + ~1.5 min
 # project image) and a compose run: more than the suite's default 600 s may pass under load.
@@ -357,6 +359,7 @@ class Observer:
 CUT_S = 2.0
 FRESH_S = 0.2  # a command at most this far (simulation s) behind the swarm's newest is fresh
 REJOIN_SETTLE_S = 10.0  # simulation s a restarted robot gets to fly back into formation
+SILENT_HOLD_S = DegradedLimits.silent_hold  # the world holds a robot silent longer than this at zero velocity
 
 
 @pytest.fixture(scope="module")
@@ -432,9 +435,15 @@ def test_docker_kill_and_start_of_an_agent_rejoins_the_swarm(broken_run):
     assert obs.exit_codes["world"] == 0, p.logs()
     s = p.summary()
     assert s["complete"] and s["clock"] == "realtime"
-    # While it was dead the world held robot 3 (its silence is in the record) ...
+    # While it was dead the world held robot 3 still and its neighbours saw its estimate go stale
+    # (both in the record). How long it was dead depends on how fast docker starts a container,
+    # so the test asks that the silence is there, not how many ticks it lasted.
     held = s["faults"]["degraded_ticks"]
-    assert held.get("world_held_at_zero", {}).get("3", 0) + held.get("stale_neighbour", {}).get("2", 0) > 50
+    dead_s = obs.rejoined_at_t - obs.killed_at_t
+    assert dead_s > SILENT_HOLD_S, f"robot 3 was silent only {dead_s:.2f} s: too short to test the hold"
+    assert held.get("world_held_at_zero", {}).get("3", 0) > 0, held
+    sc = load(SCENARIO)
+    assert sum(held.get("stale_neighbour", {}).get(str(j), 0) for j in sc.neighbours(3)) > 0, held
     # ... and once back it flew in formation again (judged before the network fault that follows).
     with np.load(p.out / "trajectory.npz") as traj:
         t, err = traj["t"], formation_errors({k: traj[k] for k in ("p", "p0", "offsets")})
