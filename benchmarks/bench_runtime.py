@@ -113,16 +113,37 @@ def rss_mb(pid: int) -> float | None:
     return None
 
 
+def cpu_s(pid: int) -> float | None:
+    """CPU time (user + system, all threads) a live process has used so far, s."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def run_swarm(config: Path, out: Path, clock: str, speed: float = 1.0, rss_at: float | None = None) -> dict:
-    """Run a scenario as processes (no logger); return the world's counters and agents' RSS."""
+    """Run a scenario as processes (no logger); return the world's counters, agents' RSS and
+    each process's CPU time while the world ran (sampled every 0.2 s: the last sample before
+    the world ends, less the one when it started)."""
     swarm = Swarm(str(config), out, clock=clock, speed=speed, logger=False)
     rss: dict[str, float] = {}  # the largest resident size seen per agent, sampled about once a second
+    cpu_start: dict[str, float] = {}
+    cpu_last: dict[str, float] = {}
     try:
         swarm.start(timeout=120)
         world = swarm.children["world"]
-        sampled = 0.0
+        sampled = cpu_sampled = 0.0
+        for c in swarm.children.values():
+            if (c_s := cpu_s(c.pid)) is not None:
+                cpu_start[c.name] = c_s
         while world.running():
             swarm.poll(0.1)
+            if time.monotonic() - cpu_sampled > 0.2:
+                cpu_sampled = time.monotonic()
+                for c in swarm.children.values():
+                    if (c_s := cpu_s(c.pid)) is not None:
+                        cpu_last[c.name] = c_s
             if rss_at is not None and time.monotonic() - sampled > 1.0:
                 sampled = time.monotonic()
                 for c in swarm.children.values():
@@ -134,7 +155,19 @@ def run_swarm(config: Path, out: Path, clock: str, speed: float = 1.0, rss_at: f
         swarm.stop()
     if summary is None or not summary.get("complete"):
         raise RuntimeError(f"run in {out} did not complete; see {out}/logs")
-    return {"world": summary["processes"]["world-0"], "summary": summary, "rss": rss}
+    cpu = {name: round(cpu_last[name] - cpu_start.get(name, 0.0), 3) for name in cpu_last}
+    return {"world": summary["processes"]["world-0"], "summary": summary, "rss": rss, "cpu_s": cpu}
+
+
+def cpu_per_tick_ms(cpu: dict[str, float], ticks: int) -> dict:
+    """CPU ms per tick by role (agents summed) and in all, from :func:`run_swarm`'s ``cpu_s``."""
+    by_role: dict[str, float] = {}
+    for name, s in cpu.items():
+        role = name.split("-")[0]
+        by_role[role] = by_role.get(role, 0.0) + s
+    out = {role: round(1e3 * s / max(ticks, 1), 3) for role, s in sorted(by_role.items())}
+    out["total"] = round(1e3 * sum(cpu.values()) / max(ticks, 1), 3)
+    return out
 
 
 def lockstep(config: Path, folder: Path, ticks: int) -> dict:
@@ -143,7 +176,7 @@ def lockstep(config: Path, folder: Path, ticks: int) -> dict:
     w = r["world"]
     return {"scenario": config.name, "agents": r["summary"]["robots"], "ticks": w["ticks"],
             "wall_s": w["wall_s"], "ticks_per_s": w["ticks_per_s"], "missed_ticks": w["missed_ticks"],
-            "load_avg": load()}
+            "cpu_ms_per_tick": cpu_per_tick_ms(r["cpu_s"], w["ticks"]), "load_avg": load()}
 
 
 def realtime(config: Path, folder: Path, duration: float) -> dict:
