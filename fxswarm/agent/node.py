@@ -59,6 +59,12 @@ class AgentNode:
         self.estimates: dict[int, Estimate] = {}  # latest held per neighbour (zero-order hold)
         self.leader: LeaderState | None = None
         self.acted_tick = -1
+        # Lock-step pipelining: a robot sends its tick-(k+1) estimate as soon as it has acted on
+        # tick k (the estimate is final then), so neighbours hold it before tick k+1's sensing
+        # arrives; a neighbour's estimate for a tick after the one this robot acts on next waits
+        # in `ahead` until then (docs/DESIGN.md "Lock-step pipelining").
+        self.estimate_tick = -1  # the newest tick whose estimate this robot has sent
+        self.ahead: dict[int, list[Estimate]] = {}  # per neighbour: estimates for later ticks
         self.seq_estimate = 0
         self.seq_command = 0
         self.speed_limited = 0  # how often the optional speed limit bit
@@ -97,21 +103,61 @@ class AgentNode:
             if not getattr(msg, "replayed", False):
                 self.sensed_t, self.since_sense_s = msg.t, 0.0
             if self.lockstep:
-                out.append(self.estimate_message(msg.tick, msg.t))
+                if self.ahead:
+                    self._take_ahead(msg.tick)
+                if self.estimate_tick < msg.tick:  # not sent after the last act (first tick, or a skipped one)
+                    out.append(self.estimate_message(msg.tick, msg.t))
         elif isinstance(msg, Estimate):
             if msg.robot in self.neighbour_ids and msg.robot != self.id:
                 self.in_links.heard(msg.robot, msg.seq, msg.tick)
-                held = self.estimates.get(msg.robot)
-                if held is None or msg.tick >= held.tick:
-                    self.estimates[msg.robot] = msg
+                if self.lockstep and msg.tick > self.next_tick():
+                    self.ahead.setdefault(msg.robot, []).append(msg)
+                else:
+                    held = self.estimates.get(msg.robot)
+                    if held is None or msg.tick >= held.tick:
+                        self.estimates[msg.robot] = msg
         elif isinstance(msg, LeaderState):
             if self.pinned:
                 self.in_links.heard(0, msg.seq, msg.tick)
                 if self.leader is None or msg.tick >= self.leader.tick:
                     self.leader = msg
         if self.lockstep and self.ready():
-            out.append(self.act(self.sc.dt))
+            out += self.act_tick()
         return out
+
+    def next_tick(self) -> int:
+        """Lock-step: the tick this robot acts on next (the one after its last act, or a later
+        sensing's if the world moved on without it)."""
+        return max(self.acted_tick + 1, self.sense.tick if self.sense is not None else 0)
+
+    def _take_ahead(self, upto: int) -> None:
+        """Hold each neighbour's newest waiting estimate for a tick up to ``upto``."""
+        for j, waiting in list(self.ahead.items()):
+            due = [m for m in waiting if m.tick <= upto]
+            if not due:
+                continue
+            newest = max(due, key=lambda m: m.tick)
+            held = self.estimates.get(j)
+            if held is None or newest.tick >= held.tick:
+                self.estimates[j] = newest
+            rest = [m for m in waiting if m.tick > upto]
+            if rest:
+                self.ahead[j] = rest
+            else:
+                del self.ahead[j]
+
+    def act_tick(self) -> list[topics.Outgoing]:
+        """Lock-step: act on the current tick ``k``; return the command and the tick-``k+1``
+        estimate (final now: the estimator has stepped), sent at once so it is not on the next
+        tick's critical path."""
+        cmd = self.act(self.sc.dt)
+        k = self.acted_tick + 1
+        if self.ahead:
+            self._take_ahead(k)
+        if k >= self.sc.ticks:
+            return [cmd]  # the run's last tick: no next one to estimate for
+        self.estimate_tick = k
+        return [cmd, self.estimate_message(k, k * self.sc.dt)]
 
     def waiting_for(self, tick: int) -> list[str]:
         """Senders whose tick-``tick`` message this agent still lacks (lock-step)."""

@@ -49,7 +49,7 @@ class AgentProcess(RoleProcess):
         missing = agent.waiting_for(s.tick)
         names = ["leader/0" if m == "leader" else "agent/" + m.split(":")[1] for m in missing]
         if names and all(n in self.gone for n in names):
-            self.publish(agent.act(self.sc.dt))
+            self.publish(agent.act_tick())
 
 
 def main(args: argparse.Namespace) -> int:
