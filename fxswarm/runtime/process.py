@@ -224,9 +224,14 @@ class RoleProcess:
 
 
 def run_event_loop(proc: RoleProcess, on_idle=None, step: float = 0.1) -> None:
-    """Deliver messages until stopped; ``on_idle()`` runs after every batch (and every ``step`` s)."""
+    """Deliver messages until stopped; ``on_idle()`` runs at least every ``step`` s and after
+    every liveliness change.
+
+    The node's work happens in its handlers, so while no peer is gone the handlers run on
+    Zenoh's callback threads (``poll(stay=True)``): the loop is not woken per message.
+    """
     while not proc.stopping:
-        proc.bus.poll(step)
+        proc.bus.poll(step, stay=not proc.gone)
         if on_idle is not None:
             on_idle()
         proc.check_parent()
