@@ -128,7 +128,7 @@ class RoleProcess:
         except ValueError as exc:
             print(f"fxswarm {role}: {exc}", file=sys.stderr)
             raise SystemExit(2) from None
-        self.bus = ZenohBus(swarm, options, drop_when_congested=not self.lockstep)
+        self.bus = ZenohBus(swarm, options, drop_when_congested=not self.lockstep, batch=self.lockstep)
         for sig in (signal.SIGTERM, signal.SIGINT):
             signal.signal(sig, self._on_signal)
 
