@@ -113,3 +113,81 @@ def test_zenoh_options_come_from_the_scenario_table_and_the_command_line_wins():
                        ({"port": 1}, "zenoh.port")):
         with pytest.raises(ValueError, match=f"x.toml: {field}"):
             zenoh_table(bad, "x.toml")
+
+
+def wait_for(done, timeout: float) -> bool:
+    """Wait (without a bus) until ``done()``, checking every millisecond."""
+    import time
+
+    end = time.monotonic() + timeout
+    while not done() and time.monotonic() < end:
+        time.sleep(0.001)
+    return done()
+
+
+def stay_until(bus: ZenohBus, done, timeout: float) -> bool:
+    """Like :func:`wait_until`, polling with ``stay=True``."""
+    import time
+
+    end = time.monotonic() + timeout
+    while not done() and time.monotonic() < end:
+        bus.poll(0.05, stay=True)
+    return done()
+
+
+@pytest.mark.zenoh
+def test_poll_stay_runs_handlers_off_the_polling_thread_only_while_polling_and_still_validates(router):
+    import threading
+
+    a, b = client(router, "stay"), client(router, "stay")
+    try:
+        where, alive = [], []
+        a.subscribe("agent/*/estimate", lambda topic, msg: where.append((msg.tick, threading.get_ident())))
+        b.declare_alive("agent", 3)
+        a.watch_alive("**", lambda name, up: alive.append(name))
+        assert wait_until(a, lambda: "agent/3" in alive, 10)
+        main = threading.get_ident()
+        b.publish("agent/3/estimate", estimate(3, tick=1))
+        assert wait_until(a, lambda: where, 10)  # plain poll: on the polling thread
+        assert where == [(1, main)]
+        b.publish("agent/3/estimate", estimate(3, tick=2))
+        b.publish_bytes("agent/3/estimate", b"\x00garbage")
+        b.publish("agent/3/estimate", estimate(3, tick=3))
+        assert stay_until(a, lambda: len(where) == 3 and a.counters.invalid == 1, 10), (where, a.counters)
+        assert [t for t, _ in where] == [1, 2, 3]  # one key's order kept
+        assert any(ident != main for _, ident in where[1:])  # delivered on a Zenoh callback thread
+        # Between polls no handler runs: what arrives waits for the next poll.
+        b.publish("agent/3/estimate", estimate(3, tick=4))
+        b.publish("agent/3/estimate", estimate(3, tick=5))
+        assert wait_for(lambda: a._inbox.qsize() == 2, 10)  # noqa: SLF001 - queued, not handled
+        assert len(where) == 3
+        assert a.poll(0) == 2 and where[3:] == [(4, main), (5, main)]
+    finally:
+        a.close()
+        b.close()
+
+
+@pytest.mark.zenoh
+def test_poll_stay_returns_on_wake_from_a_handler_and_reraises_a_handlers_error(router):
+    a, b = client(router, "stay-err"), client(router, "stay-err")
+    try:
+        def handler(topic, msg):
+            if msg.tick == 1:
+                a.wake()  # e.g. the world's last tick: the loop must see it now
+            else:
+                raise RuntimeError(f"handler failed at tick {msg.tick}")
+
+        a.subscribe("agent/*/estimate", handler)
+        alive = []
+        a.watch_alive("**", lambda name, up: alive.append(name))
+        b.declare_alive("agent", 3)
+        assert wait_until(a, lambda: "agent/3" in alive, 10)
+        b.publish("agent/3/estimate", estimate(3, tick=1))
+        assert a.poll(30, stay=True) == 1  # returned on wake(), long before the timeout
+        b.publish("agent/3/estimate", estimate(3, tick=2))
+        with pytest.raises(RuntimeError, match="tick 2"):
+            for _ in range(200):
+                a.poll(0.05, stay=True)
+    finally:
+        a.close()
+        b.close()

@@ -128,7 +128,7 @@ class RoleProcess:
         except ValueError as exc:
             print(f"fxswarm {role}: {exc}", file=sys.stderr)
             raise SystemExit(2) from None
-        self.bus = ZenohBus(swarm, options, drop_when_congested=not self.lockstep)
+        self.bus = ZenohBus(swarm, options, drop_when_congested=not self.lockstep, batch=self.lockstep)
         for sig in (signal.SIGTERM, signal.SIGINT):
             signal.signal(sig, self._on_signal)
 
@@ -224,9 +224,14 @@ class RoleProcess:
 
 
 def run_event_loop(proc: RoleProcess, on_idle=None, step: float = 0.1) -> None:
-    """Deliver messages until stopped; ``on_idle()`` runs after every batch (and every ``step`` s)."""
+    """Deliver messages until stopped; ``on_idle()`` runs at least every ``step`` s and after
+    every liveliness change.
+
+    The node's work happens in its handlers, so while no peer is gone the handlers run on
+    Zenoh's callback threads (``poll(stay=True)``): the loop is not woken per message.
+    """
     while not proc.stopping:
-        proc.bus.poll(step)
+        proc.bus.poll(step, stay=not proc.gone)
         if on_idle is not None:
             on_idle()
         proc.check_parent()

@@ -1,11 +1,15 @@
 """The Zenoh bus: the :class:`fxswarm.core.bus.Bus` interface over Eclipse Zenoh.
 
 Keys are ``fxswarm/<swarm>/<topic>``. Zenoh delivers samples on its own
-threads; the callbacks here only enqueue raw bytes (a slow callback stalls
-the whole session, notes/zenoh.md), and the process's main loop calls
-:meth:`ZenohBus.poll`, which decodes, validates and hands messages to the
-handlers on the main thread. Liveliness changes travel through the same
-queue, so a process sees data and arrivals/departures in one order.
+threads; the process's main loop calls :meth:`ZenohBus.poll`, and handlers
+only ever run while a ``poll`` is in progress, one at a time. By default the
+callbacks enqueue the raw bytes and ``poll`` decodes, validates and hands
+them to the handlers on the calling thread. ``poll(timeout, stay=True)``
+(lock-step loops) instead lets the callback thread run the handler itself
+while the caller sleeps: one thread hand-over less per message, which is
+most of what a message costs a Python process (benchmarks/bench_transport.py).
+Liveliness changes always go through the queue, so they end a ``poll`` at
+once and a loop reacts to a departure without waiting out its timeout.
 
 Invalid payloads (not msgpack, wrong schema, wrong shape, non-finite values,
 or a sender that does not match its key, e.g. ``agent/3/cmd`` signed by
@@ -18,6 +22,7 @@ from __future__ import annotations
 import argparse
 import queue
 import sys
+import threading
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -175,20 +180,33 @@ _RAW = object()  # tags a payload handed over undecoded
 class ZenohBus:
     """One Zenoh session of one process, with the :class:`~fxswarm.core.bus.Bus` interface."""
 
-    def __init__(self, swarm: str, options: ZenohOptions, validate: bool = True, drop_when_congested: bool = False) -> None:
+    def __init__(self, swarm: str, options: ZenohOptions, validate: bool = True, drop_when_congested: bool = False,
+                 batch: bool = False) -> None:
         """``drop_when_congested``: publish with Zenoh's DROP congestion control instead of BLOCK.
 
         Lock-step needs every message (BLOCK); in real time a message is worth less than
         not waiting for it: with BLOCK, one robot cut off the network fills the router's
         queue towards it and pauses every publisher, the world's clock included.
+
+        ``batch``: publish without Zenoh's ``express`` flag, so messages sent back to back
+        (the lock-step world's 8 per tick) may share a write: lock-step paper-fast spent
+        ~15 % less CPU per tick; in real time it added 0.5-2 ms to the median
+        sense-to-command latency, so real time keeps ``express`` (docs/DESIGN.md).
         """
         self.swarm = swarm
         self._congestion = zenoh.CongestionControl.DROP if drop_when_congested else zenoh.CongestionControl.BLOCK
+        self._express = not batch
         self.options = options
         self.root = topics.prefix(swarm)
         self.counters = Counters()
         self.validate = validate
         self._inbox: queue.SimpleQueue = queue.SimpleQueue()
+        # poll(stay=True) in progress: callbacks may dispatch on their own thread, one at a
+        # time (the gate); _failed carries a handler's exception back to the polling thread.
+        self._staying = False
+        self._gate = threading.Lock()
+        self._delivered = 0
+        self._failed: BaseException | None = None
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._subscribers: list = []
         self._tokens: list = []
@@ -210,7 +228,7 @@ class ZenohBus:
         if pub is None:
             pub = self.session.declare_publisher(
                 f"{self.root}/{topic}", congestion_control=self._congestion,
-                priority=zenoh.Priority.REAL_TIME, express=True)
+                priority=zenoh.Priority.REAL_TIME, express=self._express)
             self._publishers[topic] = pub
         pub.put(payload)
         self.counters.sent += 1
@@ -222,11 +240,10 @@ class ZenohBus:
         for a reader that only wants the latest of many (e.g. a progress line).
         """
         cut = len(self.root) + 1
-        put = self._inbox.put
         tag = _RAW if raw else handler
 
-        def on_sample(sample, handler=handler) -> None:  # Zenoh thread: enqueue only
-            put((handler, str(sample.key_expr)[cut:], sample.payload.to_bytes(), tag))
+        def on_sample(sample, handler=handler) -> None:  # a Zenoh callback thread
+            self._arrive((handler, str(sample.key_expr)[cut:], sample.payload.to_bytes(), tag))
 
         self._subscribers.append(self.session.declare_subscriber(f"{self.root}/{pattern}", on_sample))
 
@@ -248,24 +265,59 @@ class ZenohBus:
             f"{self.root}/alive/{pattern}", on_change, history=True))
 
     def wake(self) -> None:
-        """Make a blocked :meth:`poll` return now (safe from a signal handler)."""
+        """Make a blocked :meth:`poll` return now (safe from a signal handler and from a handler)."""
         self._inbox.put(_WAKE)
 
-    def poll(self, timeout: float | None) -> int:
-        """Wait up to ``timeout`` s for traffic, then deliver all that is queued; return how many."""
+    def _arrive(self, item) -> None:
+        """A Zenoh callback thread: dispatch here if a ``poll(stay=True)`` lets us, else enqueue."""
+        if self._staying:
+            with self._gate:
+                # An empty inbox keeps each subscriber's order: its earlier samples may wait there.
+                if self._staying and self._failed is None and self._inbox.empty():
+                    try:
+                        self._delivered += self._dispatch(item)
+                    except BaseException as exc:  # noqa: BLE001 - re-raised by poll, on its thread
+                        self._failed = exc
+                        self._inbox.put(_WAKE)
+                    return
+        self._inbox.put(item)
+
+    def poll(self, timeout: float | None, stay: bool = False) -> int:
+        """Wait up to ``timeout`` s for traffic and deliver it; return how many messages.
+
+        ``stay=False``: return after the first batch (all that is queued by then).
+        ``stay=True``: stay the whole ``timeout``, handlers running on Zenoh's callback
+        threads (one at a time, never after ``poll`` returns) so the caller is not woken
+        per message; returns early on :meth:`wake`, a liveliness change, or a sample that
+        had to be queued. For loops whose work happens in the handlers (lock-step).
+        """
+        before = self._delivered
+        if stay and self._inbox.empty():
+            self._staying = True
         try:
-            item = self._inbox.get(timeout=timeout) if timeout is None or timeout > 0 else self._inbox.get_nowait()
+            if timeout is None or timeout > 0:
+                item = self._inbox.get(timeout=timeout)
+            else:
+                item = self._inbox.get_nowait()
         except queue.Empty:
+            item = _WAKE
+        finally:
+            if self._staying:
+                with self._gate:  # wait for a handler running on a callback thread
+                    self._staying = False
+        if self._failed is not None:
+            exc, self._failed = self._failed, None
+            raise exc
+        if item is _WAKE and self._delivered == before and self._inbox.empty():
             return 0
-        n = 0
-        get = self._inbox.get_nowait
+        get = self._inbox.get_nowait  # no callback dispatches now: the queue is ours
         while True:
             if item is not _WAKE:
-                n += self._dispatch(item)
+                self._delivered += self._dispatch(item)
             try:
                 item = get()
             except queue.Empty:
-                return n
+                return self._delivered - before
 
     def _dispatch(self, item) -> int:
         handler, topic, payload, tag = item

@@ -92,6 +92,11 @@ def build_node(scenario: Scenario, args: argparse.Namespace):
 
 
 class WorldProcess(RoleProcess):
+    def deliver(self, topic: str, msg: Message) -> None:
+        super().deliver(topic, msg)
+        if self.lockstep and self.core.done:
+            self.bus.wake()  # the loop may be sleeping in poll(stay=True): the run is over now
+
     def is_late(self, msg: Message) -> bool:
         return isinstance(msg, Command) and msg.tick < self.core.tick
 
@@ -119,7 +124,9 @@ def run_lockstep(proc: RoleProcess, tick_timeout: float) -> None:
     deadline = time.monotonic() + tick_timeout
     tick = world.tick
     while not world.done and not proc.stopping:
-        proc.bus.poll(max(0.0, min(0.1, deadline - time.monotonic())))
+        # The tick protocol runs in the handlers: the loop only wakes for deadlines and
+        # departures (0.1 s late at most to see a new tick: a deadline is never early).
+        proc.bus.poll(max(0.0, min(0.1, deadline - time.monotonic())), stay=not proc.gone)
         now = time.monotonic()
         if world.done:
             break
