@@ -155,13 +155,20 @@ def test_poll_stay_runs_handlers_off_the_polling_thread_only_while_polling_and_s
         b.publish("agent/3/estimate", estimate(3, tick=3))
         assert stay_until(a, lambda: len(where) == 3 and a.counters.invalid == 1, 10), (where, a.counters)
         assert [t for t, _ in where] == [1, 2, 3]  # one key's order kept
-        assert any(ident != main for _, ident in where[1:])  # delivered on a Zenoh callback thread
+        # Delivered on a Zenoh callback thread (one that lands between two polls is queued and
+        # handled on the polling thread instead: send more until one lands inside a poll).
+        tick = 3
+        while all(ident == main for _, ident in where[1:]) and tick < 50:
+            tick += 1
+            b.publish("agent/3/estimate", estimate(3, tick=tick))
+            assert stay_until(a, lambda: len(where) == tick, 10)
+        assert any(ident != main for _, ident in where[1:]), where
         # Between polls no handler runs: what arrives waits for the next poll.
-        b.publish("agent/3/estimate", estimate(3, tick=4))
-        b.publish("agent/3/estimate", estimate(3, tick=5))
+        b.publish("agent/3/estimate", estimate(3, tick=tick + 1))
+        b.publish("agent/3/estimate", estimate(3, tick=tick + 2))
         assert wait_for(lambda: a._inbox.qsize() == 2, 10)  # noqa: SLF001 - queued, not handled
-        assert len(where) == 3
-        assert a.poll(0) == 2 and where[3:] == [(4, main), (5, main)]
+        assert len(where) == tick
+        assert a.poll(0) == 2 and where[tick:] == [(tick + 1, main), (tick + 2, main)]
     finally:
         a.close()
         b.close()
