@@ -110,6 +110,9 @@ KINDS: dict[str, type[Message]] = {
     "command": Command, "state": WorldState,
 }
 _KIND_OF = {cls: name for name, cls in KINDS.items()}
+# Field names per message class, once: dataclasses.fields() rebuilds its tuple on every call,
+# a few microseconds each on the hot path (every message encoded and decoded).
+_FIELDS: dict[type, tuple[str, ...]] = {cls: tuple(f.name for f in fields(cls)) for cls in KINDS.values()}
 ROLES = ("world", "leader", "agent", "logger", "test")
 
 # Field types: "vec" (3,), "vec?" (3,) or None, "mat" (n, 3), "row" (n,), "int", "bool",
@@ -126,14 +129,15 @@ _MAX_COUNT = 2**53
 def encode(msg: Message) -> bytes:
     """The msgpack wire form of ``msg``."""
     # Envelope keys must not collide with field names (Command and WorldState have a field "v").
-    out = {"schema": SCHEMA_VERSION, "kind": _KIND_OF[type(msg)]}
-    for f in fields(msg):
-        value = getattr(msg, f.name)
+    cls = type(msg)
+    out = {"schema": SCHEMA_VERSION, "kind": _KIND_OF[cls]}
+    for name in _FIELDS[cls]:
+        value = getattr(msg, name)
         if isinstance(value, np.ndarray):
             value = value.tolist()
         elif isinstance(value, np.generic):
             value = value.item()
-        out[f.name] = value
+        out[name] = value
     return msgpack.packb(out, use_bin_type=True)
 
 
@@ -201,15 +205,15 @@ def decode(payload: bytes) -> Message:
     for name in ("sender", "seq", "tick"):
         values[name] = _check(name, "int", raw.get(name))
     shapes = _STATE_SHAPES if cls is WorldState else _SHAPES
-    for f in fields(cls):
-        if f.name in values:
+    for name in _FIELDS[cls]:
+        if name in values:
             continue
-        if f.name not in raw:
-            if f.name == "flags":
-                values[f.name] = 0
+        if name not in raw:
+            if name == "flags":
+                values[name] = 0
                 continue
-            raise WireError(f"missing field {f.name!r}")
-        values[f.name] = _check(f.name, shapes[f.name], raw[f.name])
+            raise WireError(f"missing field {name!r}")
+        values[name] = _check(name, shapes[name], raw[name])
     if cls is WorldState:
         n = len(values["p"])
         if not all(len(values[k]) == n for k in ("v", "ph", "nearest", "avoid")):
