@@ -53,18 +53,26 @@ def entities(path: Path) -> set[str]:
     return {chunk.entity_path.lstrip("/") for chunk in RrdReader(path).stream()}
 
 
+def record_in_process(sc, rrd: Path, recording_id: str, options: RecorderOptions):
+    """Run ``sc`` in the in-process simulator with a recorder on its bus writing ``rrd``;
+    return (simulation, summary, recorder)."""
+    sim = Simulation(sc)
+    rec, _ = open_recording(Outputs(file=rrd), recording_id=recording_id)
+    recorder = SwarmRecorder(sc, rec, options)
+    recorder.start()
+    attach(sim.bus, recorder)
+    summary = sim.run()
+    recorder.close()
+    return sim, summary, recorder
+
+
 @pytest.fixture(scope="module")
 def live_run(scenario, tmp_path_factory):
     """A lock-step simulation with the recorder on its bus; returns (rrd path, trajectory, recorder)."""
     folder = tmp_path_factory.mktemp("live")
     rrd = folder / "recording.rrd"
-    sim = Simulation(scenario)
-    rec, _ = open_recording(Outputs(file=rrd), recording_id="test-live")
-    recorder = SwarmRecorder(scenario, rec, RecorderOptions(rate_hz=20.0, velocities=True))
-    recorder.start()
-    attach(sim.bus, recorder)
-    summary = sim.run()
-    recorder.close()
+    sim, summary, recorder = record_in_process(scenario, rrd, "test-live",
+                                               RecorderOptions(rate_hz=20.0, velocities=True))
     write_run(folder, summary, sim.trajectory())
     return rrd, sim.trajectory(), recorder
 
@@ -216,14 +224,8 @@ def test_a_drop_at_a_receivers_inbox_shows_on_that_edge_in_the_recording(tmp_pat
     data["scenario"]["duration"] = 3.0
     data["faults"] = {"partitions": [{"start": 1.0, "end": 2.0, "links": ["agent:2->agent:3"], "kinds": ["estimate"]}]}
     sc = parse(data, "paper-fast.toml+partition")
-    sim = Simulation(sc)
     rrd = tmp_path / "partition.rrd"
-    rec, _ = open_recording(Outputs(file=rrd), recording_id="test-partition")
-    recorder = SwarmRecorder(sc, rec, RecorderOptions(rate_hz=20.0))
-    recorder.start()
-    attach(sim.bus, recorder)
-    summary = sim.run()
-    recorder.close()
+    sim, summary, recorder = record_in_process(sc, rrd, "test-partition", RecorderOptions(rate_hz=20.0))
     dropped = summary["faults"]["links"]["agent:2->agent:3/estimate"]["dropped"]
     assert dropped == 100
     series = read_series(rrd)
@@ -324,14 +326,8 @@ def test_moving_obstacles_move_in_the_recording(scenario, tmp_path):
 
     moving = motion.ConstantVelocity((0.0, 0.0, 5.0), (0.5, 0.0, 0.0))
     sc = dataclasses.replace(scenario, duration=1.0, obstacles=(moving, *scenario.obstacles[1:]))
-    sim = Simulation(sc)
     rrd = tmp_path / "moving.rrd"
-    rec, _ = open_recording(Outputs(file=rrd), recording_id="test-moving")
-    recorder = SwarmRecorder(sc, rec, RecorderOptions(rate_hz=10.0))
-    recorder.start()
-    attach(sim.bus, recorder)
-    sim.run()
-    recorder.close()
+    sim, _, recorder = record_in_process(sc, rrd, "test-moving", RecorderOptions(rate_hz=10.0))
     traj = sim.trajectory()
     series = read_series(rrd)[style.OBSTACLES]
     k = _rows_at(traj["t"], series["t"])
