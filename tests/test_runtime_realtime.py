@@ -68,3 +68,49 @@ def test_paper_fast_in_real_time_meets_the_real_time_outcome_on_a_loaded_machine
     assert summary["min_object_distance_m"] >= 1.8, detail
     assert summary["formation_error_final_m"] <= 0.25, detail
     assert summary["estimate_error_final_m"] <= 0.25, detail
+
+
+def test_periodic_loop_acts_on_fresh_data_inside_the_delivery_and_keeps_its_timer():
+    """Real time: an early act happens where the message is delivered (on Zenoh's callback thread
+    under ``poll(stay=True)``), not after the poll returns; the timer then waits ``patience``."""
+    import time
+    from types import SimpleNamespace
+
+    from fxswarm.runtime.process import run_periodic_loop
+
+    period = 0.05
+    acts: list[tuple[str, float]] = []
+    fresh = {"sense": False}
+
+    class Bus:
+        polls = 0
+
+        def poll(self, timeout, stay=False):
+            self.polls += 1
+            if self.polls == 2:  # fresh sensing lands during the second poll
+                assert stay
+                fresh["sense"] = True
+                proc.deliver()
+                acts.append(("poll returns", time.monotonic()))
+            elif timeout:
+                time.sleep(timeout)
+            return 0
+
+    def deliver():
+        if proc.after_deliver is not None:
+            proc.after_deliver()
+
+    def act():
+        acts.append(("act", time.monotonic()))
+        fresh["sense"] = False
+        if len([a for a in acts if a[0] == "act"]) == 3:
+            proc.stopping = True
+
+    proc = SimpleNamespace(bus=Bus(), node=object(), gone=set(), stopping=False, after_deliver=None,
+                           deliver=deliver, publish=lambda out: None, check_parent=lambda: None,
+                           exit_with_world=lambda: None)
+    run_periodic_loop(proc, period, act, act_early=lambda: fresh["sense"], patience=1.5)
+    names = [n for n, _ in acts]
+    assert names[:3] == ["act", "act", "poll returns"], acts  # timer at start, then early inside the poll
+    early, timer = acts[1][1], acts[3][1]
+    assert names[3] == "act" and timer - early >= 1.5 * period - 0.005, acts  # the timer waited patience

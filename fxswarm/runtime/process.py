@@ -118,6 +118,7 @@ class RoleProcess:
         self.gone: set[str] = set()  # tokens seen up, then down
         self.node = None
         self.core = None
+        self.after_deliver = None  # called after each delivered message (run_periodic_loop's early act)
         parent = os.environ.get(PARENT_ENV)
         self.parent_pid = int(parent) if parent else None
         # A busy main thread delays Zenoh's callback threads by the switch interval (5 ms
@@ -187,6 +188,8 @@ class RoleProcess:
         out = self.node.handle(topic, msg)
         if out:
             self.bus.publish_all(self.in_send_order(out))
+        if self.after_deliver is not None:
+            self.after_deliver()
 
     def is_late(self, msg: Message) -> bool:
         """Lock-step: a message for a tick the receiver has already left (role-specific)."""
@@ -247,11 +250,26 @@ def run_periodic_loop(proc: RoleProcess, period_wall: float, act, act_early=None
     periods, so it only fires when fresh data is late (acting on the timer
     just before the data arrives would do the work twice). A late loop does
     not burst to catch up: it acts once and goes on.
+
+    Unless a fault filter must release delayed messages between batches, Zenoh's
+    callback threads run the handlers as messages arrive (``poll(stay=True)``),
+    ``act_early`` checked after each: the world takes a command the moment it
+    lands, an agent answers fresh sensing on the thread that received it,
+    neither waits for its main thread to wake.
     """
+    stay = not hasattr(proc.node, "poll")
     due = time.monotonic()
+    if act_early is not None:
+        def act_now_if_early() -> None:
+            nonlocal due
+            if act_early():
+                act()
+                due = time.monotonic() + patience * period_wall
+
+        proc.after_deliver = act_now_if_early
     while not proc.stopping:
         left = due - time.monotonic()
-        proc.bus.poll(min(left, 0.1) if left > 0 else 0)
+        proc.bus.poll(min(left, 0.1) if left > 0 else 0, stay=stay and not proc.gone)
         proc.publish(getattr(proc.node, "poll", lambda: [])())  # delayed messages now due (faults)
         now = time.monotonic()
         if act_early is not None and act_early():
