@@ -50,15 +50,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench_runtime import cpu_s  # noqa: E402  (a sibling script: CPU time from /proc)
+
 MECHANISMS = ("queue", "queue-direct", "inline", "inline-direct", "fifo", "bus", "bus-stay")
 IDLE_KEYS = ("agent/90/estimate", "agent/91/estimate", "leader/state")
 PAYLOAD = b"x" * 100
-
-
-def cpu_s(pid: int) -> float:
-    """CPU time (user + system, all threads) a live process has used so far, s."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 # --- the two sides (run in their own processes) ----------------------------------------------

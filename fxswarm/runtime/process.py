@@ -259,23 +259,24 @@ def run_periodic_loop(proc: RoleProcess, period_wall: float, act, act_early=None
     """
     stay = not hasattr(proc.node, "poll")
     due = time.monotonic()
-    if act_early is not None:
-        def act_now_if_early() -> None:
-            nonlocal due
-            if act_early():
-                act()
-                due = time.monotonic() + patience * period_wall
 
-        proc.after_deliver = act_now_if_early
+    def act_if_early() -> bool:
+        nonlocal due
+        if act_early is None or not act_early():
+            return False
+        act()
+        due = time.monotonic() + patience * period_wall
+        return True
+
+    if act_early is not None:
+        proc.after_deliver = act_if_early  # after every delivered message, on whichever thread
     while not proc.stopping:
         left = due - time.monotonic()
         proc.bus.poll(min(left, 0.1) if left > 0 else 0, stay=stay and not proc.gone)
         proc.publish(getattr(proc.node, "poll", lambda: [])())  # delayed messages now due (faults)
         now = time.monotonic()
-        if act_early is not None and act_early():
-            act()
-            due = now + patience * period_wall
-        elif now >= due:
+        # act_if_early again: messages a fault filter released just now bypassed deliver.
+        if not act_if_early() and now >= due:
             act()
             due = due + period_wall if now - due < period_wall else now + period_wall
         proc.check_parent()

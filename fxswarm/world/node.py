@@ -105,7 +105,6 @@ class WorldNode:
         self._link_age: list[tuple[int, ...]] = [(0,) * m for m in self.in_degree]
         self._link_drops: list[tuple[int, ...]] = [(0,) * m for m in self.in_degree]
         self._link_tick = [-1] * n
-        self._in_degree = np.array(self.in_degree, dtype=np.int64)
         self._links_key: tuple | None = None  # what the cached arrays were built from
         self._links_cached: tuple[np.ndarray, np.ndarray] | None = None
         self.link_reports_invalid = 0  # commands whose link reports had the wrong number of links
@@ -247,7 +246,7 @@ class WorldNode:
             return self._links_cached
         age = np.fromiter(itertools.chain.from_iterable(self._link_age), dtype=np.int64)
         drops = np.fromiter(itertools.chain.from_iterable(self._link_drops), dtype=np.int64)
-        age += np.repeat(np.array(since, dtype=np.int64), self._in_degree)
+        age += np.repeat(np.array(since, dtype=np.int64), self.in_degree)
         age.setflags(write=False)
         drops.setflags(write=False)
         self._links_key, self._links_cached = key, (age, drops)
