@@ -42,7 +42,8 @@ from fxswarm.testing import scenario_with  # noqa: E402
 PONG = r"""
 import sys, threading, zenoh
 from fxswarm.runtime.zenoh_bus import ZenohOptions
-conf = ZenohOptions("client", (sys.argv[1],), (), False).config()
+mesh = sys.argv[2] == "mesh"
+conf = ZenohOptions("peer" if mesh else "client", (sys.argv[1],), ("tcp/127.0.0.1:0",) if mesh else (), False).config()
 s = zenoh.open(conf)
 pub = s.declare_publisher("bench/pong", congestion_control=zenoh.CongestionControl.BLOCK,
                           priority=zenoh.Priority.REAL_TIME, express=True)
@@ -57,8 +58,10 @@ def load() -> float:
     return os.getloadavg()[0]
 
 
-def pingpong(n: int = 2000) -> dict:
-    """Round trip of a ~100 B payload: this process <-> another via a Python router."""
+def pingpong(n: int = 2000, topology: str = "routed") -> dict:
+    """Round trip of a ~100 B payload between this process and another: through a Python router
+    (``routed``, both its clients), or on the direct link two peers open after meeting there
+    (``mesh``, what ``fxswarm run`` uses for small swarms)."""
     import queue
 
     import zenoh
@@ -68,14 +71,20 @@ def pingpong(n: int = 2000) -> dict:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = subprocess.Popen([sys.executable, "-m", "fxswarm.cli", "router", "--listen", endpoint],
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    pong = subprocess.Popen([sys.executable, "-c", PONG, endpoint], stdin=subprocess.PIPE, cwd=ROOT)
-    s = zenoh.open(ZenohOptions("client", (endpoint,), (), False).config())
+    pong = subprocess.Popen([sys.executable, "-c", PONG, endpoint, topology], stdin=subprocess.PIPE, cwd=ROOT)
+    mesh = topology == "mesh"
+    s = zenoh.open(ZenohOptions("peer" if mesh else "client", (endpoint,), ("tcp/127.0.0.1:0",) if mesh else (),
+                                False).config())
     try:
         replies: queue.SimpleQueue = queue.SimpleQueue()
         sub = s.declare_subscriber("bench/pong", lambda sample: replies.put(time.perf_counter()))
         up: queue.SimpleQueue = queue.SimpleQueue()
         s.liveliness().declare_subscriber("bench/alive/**", lambda sample: up.put(1), history=True)
         up.get(timeout=30)
+        if mesh:  # wait for the direct link, or the first round trips go through the router
+            end = time.monotonic() + 10
+            while not s.info.peers_zid() and time.monotonic() < end:
+                time.sleep(0.01)
         pub = s.declare_publisher("bench/ping", congestion_control=zenoh.CongestionControl.BLOCK,
                                   priority=zenoh.Priority.REAL_TIME, express=True)
         payload = b"x" * 100
@@ -87,7 +96,9 @@ def pingpong(n: int = 2000) -> dict:
             if k >= 200:  # warm-up
                 rtt.append(t1 - t0)
         del sub
-        return {"n": n, "payload_bytes": 100, "route": "client -> python router -> client, and back",
+        route = ("peer -> peer (direct link), and back" if mesh
+                 else "client -> python router -> client, and back")
+        return {"n": n, "payload_bytes": 100, "topology": topology, "route": route,
                 **stats_ms(rtt), "load_avg": load()}
     finally:
         s.close()
@@ -122,11 +133,12 @@ def cpu_s(pid: int) -> float | None:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def run_swarm(config: Path, out: Path, clock: str, speed: float = 1.0, rss_at: float | None = None) -> dict:
+def run_swarm(config: Path, out: Path, clock: str, speed: float = 1.0, rss_at: float | None = None,
+              topology: str = "auto") -> dict:
     """Run a scenario as processes (no logger); return the world's counters, agents' RSS and
     each process's CPU time while the world ran (sampled every 0.2 s: the last sample before
     the world ends, less the one when it started)."""
-    swarm = Swarm(str(config), out, clock=clock, speed=speed, logger=False)
+    swarm = Swarm(str(config), out, clock=clock, speed=speed, logger=False, topology=topology)
     rss: dict[str, float] = {}  # the largest resident size seen per agent, sampled about once a second
     cpu_start: dict[str, float] = {}
     cpu_last: dict[str, float] = {}
@@ -156,7 +168,8 @@ def run_swarm(config: Path, out: Path, clock: str, speed: float = 1.0, rss_at: f
     if summary is None or not summary.get("complete"):
         raise RuntimeError(f"run in {out} did not complete; see {out}/logs")
     cpu = {name: round(cpu_last[name] - cpu_start.get(name, 0.0), 3) for name in cpu_last}
-    return {"world": summary["processes"]["world-0"], "summary": summary, "rss": rss, "cpu_s": cpu}
+    return {"world": summary["processes"]["world-0"], "summary": summary, "rss": rss, "cpu_s": cpu,
+            "topology": swarm.topology}
 
 
 def cpu_per_tick_ms(cpu: dict[str, float], ticks: int) -> dict:
@@ -170,21 +183,22 @@ def cpu_per_tick_ms(cpu: dict[str, float], ticks: int) -> dict:
     return out
 
 
-def lockstep(config: Path, folder: Path, ticks: int) -> dict:
+def lockstep(config: Path, folder: Path, ticks: int, topology: str = "auto") -> dict:
     short = scenario_with(config, folder, duration=ticks * 0.01)
-    r = run_swarm(short, folder / f"lockstep-{config.stem}", "lockstep")
+    r = run_swarm(short, folder / f"lockstep-{config.stem}", "lockstep", topology=topology)
     w = r["world"]
-    return {"scenario": config.name, "agents": r["summary"]["robots"], "ticks": w["ticks"],
+    return {"scenario": config.name, "agents": r["summary"]["robots"], "topology": r["topology"], "ticks": w["ticks"],
             "wall_s": w["wall_s"], "ticks_per_s": w["ticks_per_s"], "missed_ticks": w["missed_ticks"],
             "cpu_ms_per_tick": cpu_per_tick_ms(r["cpu_s"], w["ticks"]), "load_avg": load()}
 
 
-def realtime(config: Path, folder: Path, duration: float) -> dict:
+def realtime(config: Path, folder: Path, duration: float, topology: str = "auto") -> dict:
     short = scenario_with(config, folder, duration=duration)
-    r = run_swarm(short, folder / f"realtime-{config.stem}", "realtime", speed=1.0, rss_at=duration / 2)
+    r = run_swarm(short, folder / f"realtime-{config.stem}", "realtime", speed=1.0, rss_at=duration / 2,
+                  topology=topology)
     s = r["summary"]
     rss = [v for v in r["rss"].values() if v is not None]
-    return {"scenario": config.name, "agents": s["robots"], "rate_hz": 1 / s["dt"], "duration_s": duration,
+    return {"scenario": config.name, "agents": s["robots"], "topology": r["topology"], "rate_hz": 1 / s["dt"], "duration_s": duration,
             "sense_to_command": s["sense_to_command"], "late_ticks": s["late_ticks"], "held_ticks": s["held_ticks"],
             "achieved_speed": s["achieved_speed"],
             "stale": {k: v["stale"] for k, v in s["processes"].items()},
@@ -197,6 +211,8 @@ def main() -> int:
     p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "runtime.json"))
     p.add_argument("--quick", action="store_true", help="fewer ticks (a smoke run)")
     p.add_argument("--only", choices=("pingpong", "lockstep", "realtime"), action="append")
+    p.add_argument("--topology", choices=("auto", "mesh", "routed"), default="auto",
+                   help="of the swarms (default: what `fxswarm run` picks, mesh for 6 robots, routed for 24)")
     args = p.parse_args()
     only = set(args.only or ("pingpong", "lockstep", "realtime"))
     ticks = 300 if args.quick else 2000
@@ -208,13 +224,13 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         if "pingpong" in only:
-            result["pingpong"] = pingpong(500 if args.quick else 3000)
+            result["pingpong"] = [pingpong(500 if args.quick else 3000, t) for t in ("mesh", "routed")]
             print("pingpong", json.dumps(result["pingpong"]), file=sys.stderr)
         if "lockstep" in only:
-            result["lockstep"] = [lockstep(c, folder, ticks) for c in configs]
+            result["lockstep"] = [lockstep(c, folder, ticks, args.topology) for c in configs]
             print("lockstep", json.dumps(result["lockstep"]), file=sys.stderr)
         if "realtime" in only:
-            result["realtime"] = [realtime(c, folder, rt_duration) for c in configs]
+            result["realtime"] = [realtime(c, folder, rt_duration, args.topology) for c in configs]
             print("realtime", json.dumps(result["realtime"]), file=sys.stderr)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

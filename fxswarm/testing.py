@@ -89,12 +89,13 @@ class SwarmUnderTest:
     """
 
     def __init__(self, config: str | Path, out: str | Path, *, clock: str = "lockstep", speed: float = 1.0,
-                 logger: bool = False, tick_timeout: float = 1.0, lease_ms: int | None = None) -> None:
+                 logger: bool = False, tick_timeout: float = 1.0, lease_ms: int | None = None,
+                 topology: str = "auto") -> None:
         from fxswarm.runtime.launcher import Swarm
 
         swarm_name = f"test-{os.getpid()}-{next(_counter)}"
         self.swarm = Swarm(str(config), Path(out), clock=clock, speed=speed, swarm=swarm_name, logger=logger,
-                           tick_timeout=tick_timeout, lease_ms=lease_ms)
+                           tick_timeout=tick_timeout, lease_ms=lease_ms, topology=topology)
         self.deaths: list = []  # unplanned deaths seen so far (launcher.Death)
 
     @property
@@ -191,7 +192,8 @@ class SwarmUnderTest:
 
 @pytest.fixture
 def launch_swarm(tmp_path):
-    """``launch_swarm(config, clock=..., speed=..., logger=False, **scenario_overrides)`` -> a started swarm.
+    """``launch_swarm(config, clock=..., speed=..., logger=False, topology="auto", **scenario_overrides)``
+    -> a started swarm.
 
     Overrides are ``[scenario]`` keys (``duration=5.0``) or ``"table.key"``.
     Every swarm started is torn down at the end of the test.
@@ -200,11 +202,11 @@ def launch_swarm(tmp_path):
 
     def launch(config: str | Path = "configs/paper-fast.toml", *, clock: str = "lockstep", speed: float = 1.0,
                logger: bool = False, tick_timeout: float = 1.0, lease_ms: int | None = None, start: bool = True,
-               **overrides: Any) -> SwarmUnderTest:
+               topology: str = "auto", **overrides: Any) -> SwarmUnderTest:
         k = len(made) + 1
         path = scenario_with(config, tmp_path, **overrides) if overrides else Path(config)
         s = SwarmUnderTest(path, tmp_path / f"run-{k}", clock=clock, speed=speed, logger=logger,
-                           tick_timeout=tick_timeout, lease_ms=lease_ms)
+                           tick_timeout=tick_timeout, lease_ms=lease_ms, topology=topology)
         made.append(s)
         if start:
             s.start()

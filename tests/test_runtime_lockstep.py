@@ -15,8 +15,10 @@ PAPER_FAST = Path(__file__).resolve().parents[1] / "configs" / "paper-fast.toml"
 
 
 @pytest.mark.zenoh
-def test_lockstep_run_is_bit_identical_to_the_in_memory_sim_and_agents_hear_only_neighbours(launch_swarm):
-    swarm = launch_swarm(PAPER_FAST, duration=1.5)
+@pytest.mark.parametrize("topology", ["mesh", "routed"])
+def test_lockstep_run_is_bit_identical_to_the_in_memory_sim_and_agents_hear_only_neighbours(launch_swarm, topology):
+    swarm = launch_swarm(PAPER_FAST, duration=1.5, topology=topology)
+    assert swarm.swarm.options.mode == ("peer" if topology == "mesh" else "client")
     summary = swarm.wait_done(timeout=120)
     sc = load(swarm.swarm.config)
     sim = Simulation(sc)
@@ -38,3 +40,21 @@ def test_lockstep_run_is_bit_identical_to_the_in_memory_sim_and_agents_hear_only
         assert c["sent"] == 2 * sc.ticks and c["invalid"] == 0 and c["stale"] == 0
     assert procs["world-0"]["received"] == sc.ticks * sc.n
     assert procs["leader-0"]["received"] == sc.ticks
+
+
+@pytest.mark.zenoh
+def test_a_mesh_swarm_runs_on_its_direct_links_when_the_router_dies(launch_swarm):
+    """In a mesh the router is only where the peers met: killed once all are up (and the world
+    has ticked), the run still completes, bit for bit the in-memory sim; routed, every message
+    would have gone through it."""
+    swarm = launch_swarm(PAPER_FAST, duration=1.0)
+    assert swarm.swarm.topology == "mesh"  # auto, 6 robots
+    swarm.wait_for_sim_time(0.2)
+    swarm.kill("router")
+    summary = swarm.wait_done(timeout=120)
+    sim = Simulation(load(swarm.swarm.config))
+    sim.run()
+    expected, got = sim.trajectory(), load_trajectory(swarm.out)
+    for key in expected:
+        assert np.array_equal(got[key], expected[key]), key
+    assert summary["complete"] and summary["missed_ticks"] == 0
