@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import math
+
+import msgpack
 import numpy as np
 import pytest
 
-from fxswarm.core.messages import Clock, Command, Estimate, Sense, WireError, encode
+from fxswarm.core.messages import Clock, Command, Estimate, Sense, WireError, decode, encode
 from fxswarm.runtime.launcher import free_port
 from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions, check_sender, wait_until
 
@@ -198,3 +201,19 @@ def test_poll_stay_returns_on_wake_from_a_handler_and_reraises_a_handlers_error(
     finally:
         a.close()
         b.close()
+
+
+@pytest.mark.parametrize("bad", [[math.nan, 0.0, 0.0], [0.0, math.inf, 0.0], [0.0, 0.0, -math.inf],
+                                 [2e9, 0.0, 0.0], [0.0, -2e9, 0.0], [True, 0.0, 0.0], ["1", 0.0, 0.0],
+                                 [0.0, 0.0], [0.0, 0.0, 0.0, 0.0], None, 3.0])
+def test_decode_rejects_every_malformed_vector(bad):
+    raw = msgpack.unpackb(encode(Estimate("agent", 3, 1, 7, 0.07, 3, np.zeros(3))))
+    with pytest.raises(WireError, match="'ph'"):
+        decode(msgpack.packb({**raw, "ph": bad}))
+
+
+def test_decode_takes_integer_and_float_vectors_alike():
+    raw = msgpack.unpackb(encode(Estimate("agent", 3, 1, 7, 0.07, 3, np.zeros(3))))
+    for ph in ([1, -2, 3], [1.0, -2.0, 3.0], [1, -2.0, 3]):
+        got = decode(msgpack.packb({**raw, "ph": ph})).ph
+        assert got.dtype == float and got.tolist() == [1.0, -2.0, 3.0]
