@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from fxswarm.core.scenario import load
+from fxswarm.runtime.launcher import ZENOH_RUNTIME
 from fxswarm.runtime.output import load_trajectory
 from fxswarm.runtime.sim import Simulation
 
@@ -49,6 +51,9 @@ def test_a_mesh_swarm_runs_on_its_direct_links_when_the_router_dies(launch_swarm
     would have gone through it."""
     swarm = launch_swarm(PAPER_FAST, duration=1.0)
     assert swarm.swarm.topology == "mesh"  # auto, 6 robots
+    environ = Path(f"/proc/{swarm.pid('agent-1')}/environ").read_bytes().split(b"\0")
+    runtime = os.environ.get("ZENOH_RUNTIME", ZENOH_RUNTIME)  # the launcher's, unless the user set one
+    assert f"ZENOH_RUNTIME={runtime}".encode() in environ
     swarm.wait_for_sim_time(0.2)
     swarm.kill("router")
     summary = swarm.wait_done(timeout=120)

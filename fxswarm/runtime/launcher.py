@@ -51,6 +51,12 @@ TOPOLOGIES = ("auto", "mesh", "routed")
 # real-time latency p50 5.7 -> 3.2 ms at speed 4); with 24 the mesh's 351 links cost more than
 # the hop (44 against 51 lock-step ticks/s).
 MESH_MAX_ROBOTS = 8
+# Zenoh's runtimes in each child: one worker thread each for app, rx and tx (by default app and
+# rx have two). Fewer threads to wake per message: lock-step paper-fast ran faster in 6 of 8
+# interleaved rounds (medians 282 -> 309 and 276 -> 295 ticks/s, ~7 % less CPU per tick);
+# neutral for 24 robots and for real-time latency (docs/DESIGN.md "Transport cost").
+# A ZENOH_RUNTIME already in the environment wins.
+ZENOH_RUNTIME = "(app: (worker_threads: 1), rx: (worker_threads: 1), tx: (worker_threads: 1))"
 STOP_BUDGET_S = 4.5  # Ctrl-C to nothing left: the issue promises 5 s
 LOGGER_GRACE_S = 15.0  # at the end of a run, time for the logger to close its recording by itself
 
@@ -203,7 +209,8 @@ class Swarm:
 
     def _spawn(self, child: Child) -> None:
         child.log_path.parent.mkdir(parents=True, exist_ok=True)
-        env = dict(os.environ, PYTHONUNBUFFERED="1", **{PARENT_ENV: str(os.getpid())})
+        env = {"ZENOH_RUNTIME": ZENOH_RUNTIME, **os.environ, "PYTHONUNBUFFERED": "1",
+               PARENT_ENV: str(os.getpid())}
         with open(child.log_path, "ab") as log:
             # A new session: Ctrl-C reaches the launcher only, which stops children in order.
             child.popen = subprocess.Popen(child.argv, stdin=subprocess.DEVNULL, stdout=log, stderr=log,
