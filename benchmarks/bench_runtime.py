@@ -134,7 +134,7 @@ def cpu_s(pid: int) -> float | None:
 
 
 def run_swarm(config: Path, out: Path, clock: str, speed: float = 1.0, rss_at: float | None = None,
-              topology: str = "auto") -> dict:
+              topology: str | None = None) -> dict:
     """Run a scenario as processes (no logger); return the world's counters, agents' RSS and
     each process's CPU time while the world ran (sampled every 0.2 s: the last sample before
     the world ends, less the one when it started)."""
@@ -183,7 +183,7 @@ def cpu_per_tick_ms(cpu: dict[str, float], ticks: int) -> dict:
     return out
 
 
-def lockstep(config: Path, folder: Path, ticks: int, topology: str = "auto") -> dict:
+def lockstep(config: Path, folder: Path, ticks: int, topology: str | None = None) -> dict:
     short = scenario_with(config, folder, duration=ticks * 0.01)
     r = run_swarm(short, folder / f"lockstep-{config.stem}", "lockstep", topology=topology)
     w = r["world"]
@@ -192,7 +192,7 @@ def lockstep(config: Path, folder: Path, ticks: int, topology: str = "auto") -> 
             "cpu_ms_per_tick": cpu_per_tick_ms(r["cpu_s"], w["ticks"]), "load_avg": load()}
 
 
-def realtime(config: Path, folder: Path, duration: float, topology: str = "auto") -> dict:
+def realtime(config: Path, folder: Path, duration: float, topology: str | None = None) -> dict:
     short = scenario_with(config, folder, duration=duration)
     r = run_swarm(short, folder / f"realtime-{config.stem}", "realtime", speed=1.0, rss_at=duration / 2,
                   topology=topology)

@@ -90,7 +90,7 @@ class SwarmUnderTest:
 
     def __init__(self, config: str | Path, out: str | Path, *, clock: str = "lockstep", speed: float = 1.0,
                  logger: bool = False, tick_timeout: float = 1.0, lease_ms: int | None = None,
-                 topology: str = "auto") -> None:
+                 topology: str | None = None) -> None:
         from fxswarm.runtime.launcher import Swarm
 
         swarm_name = f"test-{os.getpid()}-{next(_counter)}"
@@ -192,7 +192,7 @@ class SwarmUnderTest:
 
 @pytest.fixture
 def launch_swarm(tmp_path):
-    """``launch_swarm(config, clock=..., speed=..., logger=False, topology="auto", **scenario_overrides)``
+    """``launch_swarm(config, clock=..., speed=..., logger=False, topology=None, **scenario_overrides)``
     -> a started swarm.
 
     Overrides are ``[scenario]`` keys (``duration=5.0``) or ``"table.key"``.
@@ -202,7 +202,7 @@ def launch_swarm(tmp_path):
 
     def launch(config: str | Path = "configs/paper-fast.toml", *, clock: str = "lockstep", speed: float = 1.0,
                logger: bool = False, tick_timeout: float = 1.0, lease_ms: int | None = None, start: bool = True,
-               topology: str = "auto", **overrides: Any) -> SwarmUnderTest:
+               topology: str | None = None, **overrides: Any) -> SwarmUnderTest:
         k = len(made) + 1
         path = scenario_with(config, tmp_path, **overrides) if overrides else Path(config)
         s = SwarmUnderTest(path, tmp_path / f"run-{k}", clock=clock, speed=speed, logger=logger,

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import msgpack
 import numpy as np
 import pytest
 
 from fxswarm.core.messages import Clock, Command, Estimate, Sense, WireError, decode, encode
+from fxswarm.core.scenario import load
 from fxswarm.runtime.launcher import free_port
 from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions, check_sender, wait_until
 
@@ -113,7 +115,7 @@ def test_zenoh_options_come_from_the_scenario_table_and_the_command_line_wins():
     swarm, opts = options_from_args(p.parse_args(["--swarm", "x", "--mode", "peer", "--multicast"]), table)
     assert swarm == "x" and opts.mode == "peer" and opts.multicast
     for bad, field in (({"connect": "tcp/a:1"}, "zenoh.connect"), ({"mode": "mesh"}, "zenoh.mode"),
-                       ({"port": 1}, "zenoh.port")):
+                       ({"port": 1}, "zenoh.port"), ({"topology": "star"}, "zenoh.topology")):
         with pytest.raises(ValueError, match=f"x.toml: {field}"):
             zenoh_table(bad, "x.toml")
 
@@ -217,3 +219,21 @@ def test_decode_takes_integer_and_float_vectors_alike():
     for ph in ([1, -2, 3], [1.0, -2.0, 3.0], [1, -2.0, 3]):
         got = decode(msgpack.packb({**raw, "ph": ph})).ph
         assert got.dtype == float and got.tolist() == [1.0, -2.0, 3.0]
+
+
+def test_the_launchers_topology_comes_from_the_command_line_else_the_scenario_else_auto(tmp_path, capsys):
+    from fxswarm.runtime.launcher import MESH_MAX_ROBOTS, Swarm
+    from fxswarm.testing import scenario_with
+
+    root = Path(__file__).resolve().parents[1] / "configs"
+    six, many = root / "paper-fast.toml", root / "large.toml"
+    assert load(six).n <= MESH_MAX_ROBOTS < load(many).n
+    assert Swarm(str(six), tmp_path).options.mode == "peer"  # auto: a mesh of 6
+    assert Swarm(str(many), tmp_path).options.mode == "client"  # auto: 24 go through the router
+    routed = scenario_with(six, tmp_path, **{"zenoh.topology": "routed"})
+    assert Swarm(str(routed), tmp_path).topology == "routed"
+    assert Swarm(str(routed), tmp_path, topology="mesh").topology == "mesh"  # the command line wins
+    bad = scenario_with(six, tmp_path, **{"zenoh.topology": "star"})
+    with pytest.raises(SystemExit) as exc:
+        Swarm(str(bad), tmp_path)
+    assert exc.value.code == 2 and f"{bad}: zenoh.topology: expected one of auto, mesh, routed" in capsys.readouterr().err

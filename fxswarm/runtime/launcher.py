@@ -43,9 +43,8 @@ from fxswarm.faults.process import ProcessSchedule
 from fxswarm.runtime.output import write_summary
 from fxswarm.runtime.process import CLOCKS, PARENT_ENV
 from fxswarm.runtime.sim_cli import load_or_exit
-from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions, zenoh_table
+from fxswarm.runtime.zenoh_bus import TOPOLOGIES, ZenohBus, ZenohOptions, zenoh_table
 
-TOPOLOGIES = ("auto", "mesh", "routed")
 # "auto" meshes swarms up to this many robots. Measured (docs/DESIGN.md "Topology"): with 6 robots
 # a mesh takes the router's hop and its CPU out of every message (-15 % CPU per lock-step tick,
 # real-time latency p50 5.7 -> 3.2 ms at speed 4); with 24 the mesh's 351 links cost more than
@@ -145,7 +144,8 @@ class Swarm:
     logger: bool = True
     tick_timeout: float = 1.0
     lease_ms: int | None = None
-    topology: str = "auto"  # mesh | routed | auto (mesh up to MESH_MAX_ROBOTS robots)
+    topology: str | None = None  # mesh | routed | auto (mesh up to MESH_MAX_ROBOTS robots); None: the
+    # scenario's [zenoh] topology, else auto
     world_args: tuple[str, ...] = ()
     faults: tuple[str, ...] = ()  # --fault specs, passed on to every role process
     python: str = sys.executable
@@ -168,6 +168,7 @@ class Swarm:
         self.swarm = self.swarm or zen.get("swarm") or f"{self.scenario.name}-{os.getpid()}"
         self.port = self.port or free_port()
         self.endpoint = f"tcp/127.0.0.1:{self.port}"
+        self.topology = self.topology or zen.get("topology") or "auto"
         if self.topology not in TOPOLOGIES:
             raise ValueError(f"topology: expected one of {', '.join(TOPOLOGIES)}, got {self.topology!r}")
         if self.topology == "auto":
@@ -453,9 +454,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--port", type=int, default=None, help="router port on 127.0.0.1 (default: a free one)")
     p.add_argument("--tick-timeout", type=float, default=1.0, metavar="S",
                    help="lock-step: a tick waits at most S s for its commands (default 1)")
-    p.add_argument("--topology", choices=TOPOLOGIES, default="auto",
+    p.add_argument("--topology", choices=TOPOLOGIES, default=None,
                    help="mesh: peers on direct links, the router only where they meet; routed: every "
-                        f"message through the router; auto (default): mesh up to {MESH_MAX_ROBOTS} robots")
+                        f"message through the router; auto: mesh up to {MESH_MAX_ROBOTS} robots (default: "
+                        "the scenario's [zenoh] topology, else auto)")
     p.add_argument("--lease-ms", type=int, default=None, help="zenoh lease (how fast a frozen process is seen gone)")
     p.add_argument("--max-lag", type=int, default=None, metavar="TICKS",
                    help="real time: the world holds its clock while a robot is more than TICKS ticks behind "

@@ -36,6 +36,7 @@ from fxswarm.core.messages import Clock, Command, Estimate, LeaderState, Message
 AliveHandler = Callable[[str, bool], None]  # (``role/id``, up?)
 
 MODES = ("peer", "client", "router")
+TOPOLOGIES = ("auto", "mesh", "routed")  # how `fxswarm run` connects its processes (launcher.py)
 
 
 @dataclass(frozen=True)
@@ -107,7 +108,8 @@ def add_zenoh_arguments(p: argparse.ArgumentParser, default_swarm: str = "defaul
                    help="session lease: how fast a frozen process is seen as gone")
 
 
-_ZENOH_FIELDS = {"swarm": str, "mode": str, "connect": list, "listen": list, "multicast": bool, "lease_ms": int}
+_ZENOH_FIELDS = {"swarm": str, "mode": str, "connect": list, "listen": list, "multicast": bool, "lease_ms": int,
+                 "topology": str}
 
 
 def zenoh_table(table, source: str = "<scenario>") -> dict:
@@ -126,6 +128,9 @@ def zenoh_table(table, source: str = "<scenario>") -> dict:
             raise ValueError(f"{source}: zenoh.{key}: expected {what}, got {value!r}")
     if "mode" in table and table["mode"] not in MODES:
         raise ValueError(f"{source}: zenoh.mode: expected one of {', '.join(MODES)}, got {table['mode']!r}")
+    if "topology" in table and table["topology"] not in TOPOLOGIES:
+        raise ValueError(f"{source}: zenoh.topology: expected one of {', '.join(TOPOLOGIES)}, "
+                         f"got {table['topology']!r}")
     return table
 
 
