@@ -187,8 +187,9 @@ def lockstep(config: Path, folder: Path, ticks: int, topology: str | None = None
     short = scenario_with(config, folder, duration=ticks * 0.01)
     r = run_swarm(short, folder / f"lockstep-{config.stem}", "lockstep", topology=topology)
     w = r["world"]
-    return {"scenario": config.name, "agents": r["summary"]["robots"], "topology": r["topology"], "ticks": w["ticks"],
-            "wall_s": w["wall_s"], "ticks_per_s": w["ticks_per_s"], "missed_ticks": w["missed_ticks"],
+    return {"scenario": config.name, "agents": r["summary"]["robots"], "topology": r["topology"],
+            "ticks": w["ticks"], "wall_s": w["wall_s"], "ticks_per_s": w["ticks_per_s"],
+            "missed_ticks": w["missed_ticks"],
             "cpu_ms_per_tick": cpu_per_tick_ms(r["cpu_s"], w["ticks"]), "load_avg": load()}
 
 
@@ -198,7 +199,8 @@ def realtime(config: Path, folder: Path, duration: float, topology: str | None =
                   topology=topology)
     s = r["summary"]
     rss = [v for v in r["rss"].values() if v is not None]
-    return {"scenario": config.name, "agents": s["robots"], "topology": r["topology"], "rate_hz": 1 / s["dt"], "duration_s": duration,
+    return {"scenario": config.name, "agents": s["robots"], "topology": r["topology"], "rate_hz": 1 / s["dt"],
+            "duration_s": duration,
             "sense_to_command": s["sense_to_command"], "late_ticks": s["late_ticks"], "held_ticks": s["held_ticks"],
             "achieved_speed": s["achieved_speed"],
             "stale": {k: v["stale"] for k, v in s["processes"].items()},

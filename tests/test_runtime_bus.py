@@ -236,4 +236,5 @@ def test_the_launchers_topology_comes_from_the_command_line_else_the_scenario_el
     bad = scenario_with(six, tmp_path, **{"zenoh.topology": "star"})
     with pytest.raises(SystemExit) as exc:
         Swarm(str(bad), tmp_path)
-    assert exc.value.code == 2 and f"{bad}: zenoh.topology: expected one of auto, mesh, routed" in capsys.readouterr().err
+    assert exc.value.code == 2
+    assert f"{bad}: zenoh.topology: expected one of auto, mesh, routed" in capsys.readouterr().err

@@ -46,9 +46,9 @@ from fxswarm.runtime.sim_cli import load_or_exit
 from fxswarm.runtime.zenoh_bus import TOPOLOGIES, ZenohBus, ZenohOptions, zenoh_table
 
 # "auto" meshes swarms up to this many robots. Measured (docs/DESIGN.md "Topology"): with 6 robots
-# a mesh takes the router's hop and its CPU out of every message (-15 % CPU per lock-step tick,
-# real-time latency p50 5.7 -> 3.2 ms at speed 4); with 24 the mesh's 351 links cost more than
-# the hop (44 against 51 lock-step ticks/s).
+# a mesh takes the router's hop out of every message (4-24 % more lock-step ticks/s, real-time
+# p50 at speed 4 halved); with 24 the mesh's 351 links cost more than the hop (46/56 against
+# 49/63 lock-step ticks/s). Between the two it was not measured.
 MESH_MAX_ROBOTS = 8
 # Zenoh's runtimes in each child: one worker thread each for app, rx and tx (by default app and
 # rx have two). Fewer threads to wake per message: lock-step paper-fast ran faster in 6 of 8
@@ -556,7 +556,8 @@ def main(args: argparse.Namespace) -> int:
         stopped = {k: v for k, v in how.items() if v != "exited"}
         if stopped and (code or not args.quiet):
             say("fxswarm run: stopped " + ", ".join(f"{k} ({v})" for k, v in stopped.items()))
-    summary = swarm.merge_summary({"launcher": {"swarm": swarm.swarm, "router": swarm.endpoint, "topology": swarm.topology,
+    summary = swarm.merge_summary({"launcher": {"swarm": swarm.swarm, "router": swarm.endpoint,
+                                                "topology": swarm.topology,
                                                 "agent_deaths": agent_deaths, "exit_code": code}})
     if summary is not None and code == 0 and not args.quiet:
         keys = ("robots", "ticks", "wall_s", "min_object_distance_m", "formation_error_final_m",
