@@ -47,8 +47,8 @@ from fxswarm.runtime.zenoh_bus import TOPOLOGIES, ZenohBus, ZenohOptions, zenoh_
 
 # "auto" meshes swarms up to this many robots. Measured (docs/DESIGN.md "Topology"): with 6 robots
 # a mesh takes the router's hop out of every message (4-24 % more lock-step ticks/s, real-time
-# p50 at speed 4 halved); with 24 the mesh's 351 links cost more than the hop (46/56 against
-# 49/63 lock-step ticks/s). Between the two it was not measured.
+# p50 at speed 4 halved), with 8 a little (177-180 against 166-174 ticks/s); with 12 the mesh's
+# links already cost more than the hop (104-114 against 106-120), with 24 (351 links) clearly.
 MESH_MAX_ROBOTS = 8
 # Zenoh's runtimes in each child: one worker thread each for app, rx and tx (by default app and
 # rx have two). Fewer threads to wake per message: lock-step paper-fast ran faster in 6 of 8
