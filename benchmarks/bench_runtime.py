@@ -54,6 +54,13 @@ s.close()
 """
 
 
+def write_json(path: str | Path, data: dict) -> None:
+    """Write a benchmark's result (its folder made if missing)."""
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(data, indent=2) + "\n")
+
+
 def load() -> float:
     return os.getloadavg()[0]
 
@@ -234,9 +241,7 @@ def main() -> int:
         if "realtime" in only:
             result["realtime"] = [realtime(c, folder, rt_duration, args.topology) for c in configs]
             print("realtime", json.dumps(result["realtime"]), file=sys.stderr)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2) + "\n")
+    write_json(args.out, result)
     print(json.dumps(result, indent=2))
     return 0
 

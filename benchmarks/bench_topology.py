@@ -26,7 +26,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench_runtime import load, lockstep  # noqa: E402  (a sibling script)
+from bench_runtime import load, lockstep, write_json  # noqa: E402  (a sibling script)
 
 from fxswarm.testing import dump_toml  # noqa: E402
 
@@ -81,9 +81,7 @@ def main() -> int:
                  for t in TOPOLOGIES}
         for n in sizes}
     result = {"ticks": args.ticks, "rounds": args.rounds, "load_avg_at_end": load(), "medians": medians, "runs": runs}
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2) + "\n")
+    write_json(args.out, result)
     print(json.dumps(medians, indent=2))
     return 0
 
