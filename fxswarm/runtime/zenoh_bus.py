@@ -44,8 +44,9 @@ class ZenohOptions:
     """How a process joins the Zenoh network.
 
     mode: ``peer`` | ``client`` | ``router``; connect/listen: endpoints such as
-    ``tcp/127.0.0.1:7447``; multicast: UDP multicast scouting (off for
-    clients of a router: a peer mesh does not scale, notes/zenoh.md);
+    ``tcp/127.0.0.1:7447``; multicast: UDP multicast scouting (off in what
+    ``fxswarm run`` starts: peers meet at the router instead, and a multicast
+    mesh does not scale, notes/zenoh.md);
     lease_ms: how long a silent (e.g. frozen) session stays alive to others;
     connect_timeout_ms: how long ``open`` waits for its router (-1: forever).
     """
