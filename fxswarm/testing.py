@@ -186,6 +186,25 @@ class SwarmUnderTest:
     def summary(self) -> dict | None:
         return self.swarm.summary()
 
+    def assert_matches_sim(self, keys: tuple[str, ...] | None = None) -> dict:
+        """Assert the finished run's ``trajectory.npz`` is ``fxswarm sim``'s on the same scenario,
+        bit for bit: every array (same names, dtypes and values), or only ``keys``. Returns the
+        simulator's summary (lock-step runs only: real time is not meant to match)."""
+        import numpy as np
+
+        from fxswarm.core.scenario import load
+        from fxswarm.runtime.output import load_trajectory
+        from fxswarm.runtime.sim import Simulation
+
+        sim = Simulation(load(self.swarm.config))
+        summary = sim.run()
+        expected, got = sim.trajectory(), load_trajectory(self.out)
+        if keys is None:
+            assert sorted(got) == sorted(expected), (sorted(got), sorted(expected))
+        for key in keys or expected:
+            assert got[key].dtype == expected[key].dtype and np.array_equal(got[key], expected[key]), key
+        return summary
+
     def stop(self) -> dict[str, str]:
         return self.swarm.stop()
 

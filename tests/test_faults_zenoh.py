@@ -16,7 +16,6 @@ from fxswarm.core.messages import (SCHEMA_VERSION, Clock, Command, Estimate, Lea
 from fxswarm.core.metrics import formation_errors
 from fxswarm.core.scenario import load
 from fxswarm.runtime.output import load_trajectory
-from fxswarm.runtime.sim import Simulation
 from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions, check_sender
 from fxswarm.testing import dump_toml
 from fxswarm.world.node import directed_links
@@ -54,11 +53,7 @@ def test_lockstep_processes_with_faults_match_the_simulator_bit_for_bit(launch_s
     swarm = launch_swarm(config)
     summary = swarm.wait_done(timeout=180)
     sc = load(config)
-    sim = Simulation(sc)
-    expected_summary = sim.run()
-    expected, got = sim.trajectory(), load_trajectory(swarm.out)
-    for key in expected:
-        assert np.array_equal(got[key], expected[key]), key
+    expected_summary = swarm.assert_matches_sim()
     assert summary["complete"] and summary["missed_ticks"] == 0
     # Each receiver counted its own inbound links; together they are the simulator's counts.
     assert summary["faults"]["links"] == expected_summary["faults"]["links"]
@@ -174,8 +169,4 @@ def test_garbage_on_every_key_kills_nothing_is_counted_and_leaves_the_lockstep_r
     for name, c in procs.items():
         assert c["invalid"] > 0, (name, c)  # every process was hit and counted it
         assert c["stop_reason"] in ("done", "world gone"), (name, c)
-    sim = Simulation(load(swarm.swarm.config))
-    sim.run()
-    expected, got = sim.trajectory(), load_trajectory(swarm.out)
-    for key in expected:
-        assert np.array_equal(got[key], expected[key]), key
+    swarm.assert_matches_sim()

@@ -8,9 +8,6 @@ import numpy as np
 import pytest
 
 from fxswarm.core.messages import Clock, Command, Estimate, LeaderState, Sense
-from fxswarm.core.scenario import load
-from fxswarm.runtime.output import load_trajectory
-from fxswarm.runtime.sim import Simulation
 from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions, wait_until
 
 PAPER_FAST = Path(__file__).resolve().parents[1] / "configs" / "paper-fast.toml"
@@ -57,8 +54,5 @@ def test_a_second_swarm_on_the_same_router_never_reaches_the_first(launch_swarm)
         shouter.close()
         listener.close()
     assert k > 5, "the intruders had no time to shout"
-    sim = Simulation(load(swarm.swarm.config))
-    sim.run()
-    got, expected = load_trajectory(swarm.out), sim.trajectory()
-    assert all(np.array_equal(got[key], expected[key]) for key in expected)
+    swarm.assert_matches_sim()
     assert all(c["invalid"] == 0 for c in summary["processes"].values())

@@ -6,13 +6,10 @@ import os
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from fxswarm.core.scenario import load
 from fxswarm.runtime.launcher import ZENOH_RUNTIME
-from fxswarm.runtime.output import load_trajectory
-from fxswarm.runtime.sim import Simulation
 
 PAPER_FAST = Path(__file__).resolve().parents[1] / "configs" / "paper-fast.toml"
 
@@ -23,13 +20,8 @@ def test_lockstep_run_is_bit_identical_to_the_in_memory_sim_and_agents_hear_only
     swarm = launch_swarm(PAPER_FAST, duration=1.5, topology=topology)
     assert swarm.swarm.options.mode == ("peer" if topology == "mesh" else "client")
     summary = swarm.wait_done(timeout=120)
+    swarm.assert_matches_sim()
     sc = load(swarm.swarm.config)
-    sim = Simulation(sc)
-    sim.run()
-    expected, got = sim.trajectory(), load_trajectory(swarm.out)
-    assert sorted(got) == sorted(expected)
-    for key in expected:
-        assert got[key].dtype == expected[key].dtype and np.array_equal(got[key], expected[key]), key
     assert summary["complete"] and summary["missed_ticks"] == 0 and summary["ticks"] == sc.ticks
 
     # Locality, counted: each tick an agent hears its sensing, each neighbour's estimate and,
@@ -65,9 +57,5 @@ def test_a_mesh_swarm_runs_on_its_direct_links_when_the_router_dies(launch_swarm
     swarm.kill("router")
     assert swarm.sim_time() < 3.5, "the run was nearly over before the router died: nothing tested"
     summary = swarm.wait_done(timeout=120)
-    sim = Simulation(load(swarm.swarm.config))
-    sim.run()
-    expected, got = sim.trajectory(), load_trajectory(swarm.out)
-    for key in expected:
-        assert np.array_equal(got[key], expected[key]), key
+    swarm.assert_matches_sim()
     assert summary["complete"] and summary["missed_ticks"] == 0
