@@ -36,14 +36,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from fxswarm.runtime.launcher import Swarm, free_port  # noqa: E402
+from fxswarm.runtime.launcher import Swarm, free_port, topology_options  # noqa: E402
 from fxswarm.testing import scenario_with  # noqa: E402
 
 PONG = r"""
 import sys, threading, zenoh
-from fxswarm.runtime.zenoh_bus import ZenohOptions
-mesh = sys.argv[2] == "mesh"
-conf = ZenohOptions("peer" if mesh else "client", (sys.argv[1],), ("tcp/127.0.0.1:0",) if mesh else (), False).config()
+from fxswarm.runtime.launcher import topology_options
+conf = topology_options(sys.argv[2], sys.argv[1]).config()
 s = zenoh.open(conf)
 pub = s.declare_publisher("bench/pong", congestion_control=zenoh.CongestionControl.BLOCK,
                           priority=zenoh.Priority.REAL_TIME, express=True)
@@ -73,15 +72,12 @@ def pingpong(n: int = 2000, topology: str = "routed") -> dict:
 
     import zenoh
 
-    from fxswarm.runtime.zenoh_bus import ZenohOptions
-
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = subprocess.Popen([sys.executable, "-m", "fxswarm.cli", "router", "--listen", endpoint],
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     pong = subprocess.Popen([sys.executable, "-c", PONG, endpoint, topology], stdin=subprocess.PIPE, cwd=ROOT)
     mesh = topology == "mesh"
-    s = zenoh.open(ZenohOptions("peer" if mesh else "client", (endpoint,), ("tcp/127.0.0.1:0",) if mesh else (),
-                                False).config())
+    s = zenoh.open(topology_options(topology, endpoint).config())
     try:
         replies: queue.SimpleQueue = queue.SimpleQueue()
         sub = s.declare_subscriber("bench/pong", lambda sample: replies.put(time.perf_counter()))

@@ -67,6 +67,18 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def topology_options(topology: str, router: str, lease_ms: int | None = None) -> ZenohOptions:
+    """How a process on this machine joins a ``mesh`` or ``routed`` swarm whose router listens at
+    ``router``: a mesh peer meets the others there (gossip) and then talks to them over direct
+    links, each on a port of its own, so the router carries no data once the links are up; a
+    routed client sends everything through it. Multicast scouting off either way."""
+    if topology == "mesh":
+        return ZenohOptions("peer", (router,), ("tcp/127.0.0.1:0",), False, lease_ms)
+    if topology == "routed":
+        return ZenohOptions("client", (router,), (), False, lease_ms)
+    raise ValueError(f"topology: expected mesh or routed, got {topology!r}")
+
+
 def logger_available() -> bool:
     try:
         return importlib.util.find_spec("fxswarm.logger.process") is not None
@@ -173,12 +185,7 @@ class Swarm:
             raise ValueError(f"topology: expected one of {', '.join(TOPOLOGIES)}, got {self.topology!r}")
         if self.topology == "auto":
             self.topology = "mesh" if self.scenario.n <= MESH_MAX_ROBOTS else "routed"
-        if self.topology == "mesh":
-            # Peers that meet at the router (gossip) and then talk over direct links, each on a
-            # port of its own: the router carries no data once the links are up.
-            self.options = ZenohOptions("peer", (self.endpoint,), ("tcp/127.0.0.1:0",), False, self.lease_ms)
-        else:
-            self.options = ZenohOptions("client", (self.endpoint,), (), False, self.lease_ms)
+        self.options = topology_options(self.topology, self.endpoint, self.lease_ms)
 
     # --- commands --------------------------------------------------------------------------
 
