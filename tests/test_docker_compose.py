@@ -326,9 +326,11 @@ class Observer:
         # minus msg.t, i.e. how stale the command is when it reaches the observer, s.
         self.cmds: dict[int, list[tuple[float, float, float]]] = {3: [], 5: []}
         self.newest_t = 0.0
+        self.world_t = -1.0  # the world's own clock, from world/state (agents' commands lag it)
         self.bus.watch_alive("agent/*", self._on_alive)
         for robot in self.cmds:
             self.bus.subscribe(f"agent/{robot}/cmd", self._on_cmd)
+        self.bus.subscribe("world/state", self._on_state)
 
     def _on_alive(self, name: str, up: bool) -> None:
         self.changes.append((name, up))
@@ -337,6 +339,9 @@ class Observer:
     def _on_cmd(self, topic: str, msg) -> None:
         self.newest_t = max(self.newest_t, msg.t)
         self.cmds[msg.robot].append((time.monotonic(), msg.t, self.newest_t - msg.t))
+
+    def _on_state(self, topic: str, msg) -> None:
+        self.world_t = max(self.world_t, msg.t)
 
     def latest_t(self, robot: int) -> float:
         return self.cmds[robot][-1][1] if self.cmds[robot] else -1.0
@@ -386,6 +391,12 @@ def broken_run(project_factory) -> tuple[ComposeProject, FaultObservations]:
         watcher.wait("agent/3 seen gone", lambda: "agent/3" not in watcher.alive, 30)
         obs.gone_after_s = time.monotonic() - t0
         heard = len(watcher.cmds[3])  # everything robot 3 said before it died
+        # The silence must outlast the world's silent hold on the world's own clock: agents'
+        # commands lag it (the real-time world goes on when a robot is late), so a fast docker
+        # start could otherwise bring robot 3 back before the world had flown the hold without it.
+        died_world_t = watcher.world_t
+        watcher.wait("the world flying on without robot 3 past its silent hold",
+                     lambda: watcher.world_t >= died_world_t + SILENT_HOLD_S + 0.2, 60)
         t0 = time.monotonic()
         _run(["docker", "start", agent3], 60, "docker start agent-3")
         watcher.wait("agent/3 alive again", lambda: "agent/3" in watcher.alive, 90)
