@@ -476,12 +476,12 @@ def test_docker_network_disconnect_is_seen_as_staleness_and_recovered_from(broke
           f"arrived for {obs.silent_wall_s:.2f} s, the stalest was {obs.stalest_s:.2f} s behind the swarm, "
           f"fresh again at t = {obs.resumed_at_t:.2f} s; the world's worst sensing-to-command "
           f"latency {latency['max_ms']:.0f} ms; degraded ticks {s['faults']['degraded_ticks']}")
-    # Seen: nothing of robot 5 crosses the cut, and the world waited longer than half the cut
-    # for a command answering its sensing (docs/DESIGN.md: with BLOCK congestion control the
-    # router's full queue to the deaf robot pauses the others too, so the world's latency, not
-    # the neighbours' staleness counts, is where the cut shows).
+    # Seen: nothing of robot 5 crosses the cut, and the world held its clock for it (a live robot
+    # lagging more than --max-lag ticks, docs/DESIGN.md): the cut cost the swarm wall time, not
+    # simulation time flown on robot 5's stale command. (Not in the world's latency: real-time
+    # publishers drop when congested, so no command of robot 5 waits out the cut in a queue.)
     assert obs.silent_wall_s >= 0.5 * CUT_S, "no command of robot 5 crosses a cut network"
-    assert latency["max_ms"] >= 500 * CUT_S
+    assert obs.resumed_at_t - obs.cut_at_t < 0.5 * obs.silent_wall_s, "the world's clock ran on"
     # Recovered: never taken for dead (the cut is shorter than the lease), fresh again, the run
     # completes, and robot 5 ends in formation.
     assert ("agent/5", False) not in obs.alive_changes, "a cut shorter than the lease is no death"

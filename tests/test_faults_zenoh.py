@@ -168,5 +168,5 @@ def test_garbage_on_every_key_kills_nothing_is_counted_and_leaves_the_lockstep_r
     assert set(procs) == {"world-0", "leader-0"} | {f"agent-{r.id}" for r in sc.robots}
     for name, c in procs.items():
         assert c["invalid"] > 0, (name, c)  # every process was hit and counted it
-        assert c["stop_reason"] in ("done", "world gone"), (name, c)
+        assert c["stop_reason"] in ("done", "run over"), (name, c)
     swarm.assert_matches_sim()

@@ -23,7 +23,7 @@ def test_launcher_runs_the_logger_and_its_recording_matches_the_trajectory(launc
     rrd = swarm.out / "recording.rrd"
     assert rrd.is_file(), "the logger left no recording"
     logger = summary["processes"]["logger-0"]
-    assert logger["stop_reason"] == "world gone", logger
+    assert logger["stop_reason"] == "run over", logger
     assert logger["invalid"] == 0
     assert logger["logger"]["nice"] >= 10  # the swarm's processes first, on a busy machine
     # Nothing dropped on a quiet machine, and whatever was dropped is counted, not lost silently.

@@ -10,7 +10,9 @@ robot acts on what it last heard from it. Real time: it acts at once on
 fresh sensing, and otherwise on its own beat (every 1.5 control periods,
 ``dt / speed`` wall s each), on the latest data held (zero-order hold),
 integrating ``dt`` = the world's time elapsed since its last act. Exits when
-the world, once seen, is gone, or on SIGINT/SIGTERM.
+the world ends the run, on SIGINT/SIGTERM, or (status 1) when a world gone
+without ending it has not come back within ``--world-timeout`` s
+(:meth:`~fxswarm.runtime.process.RoleProcess.exit_with_world`).
 """
 
 from __future__ import annotations
@@ -89,4 +91,4 @@ def main(args: argparse.Namespace) -> int:
     finally:
         proc.write_counters()
         proc.close()
-    return 0
+    return proc.exit_status

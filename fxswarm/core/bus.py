@@ -24,6 +24,10 @@ Outgoing = tuple[str, Message]  # (topic, message) a node asks to send
 CLOCK = "clock"
 WORLD_STATE = "world/state"
 LEADER_STATE = "leader/state"
+#: A liveliness token the world declares once its run has ended (done, stopped, or given up),
+#: never on a crash: the others tell "the run is over" from "the world is lost" (a network cut
+#: longer than the Zenoh lease, a frozen or killed world) by it.
+RUN_OVER = "run/over"
 
 
 def sense_topic(robot: int) -> str:

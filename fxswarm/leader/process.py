@@ -3,7 +3,8 @@
 Lock-step: answers each ``Clock(k)`` with ``LeaderState(k)`` (event-driven).
 Real time: publishes ``p0(t)`` every control period (``dt / speed`` wall
 seconds) at the simulation time learnt from the world's clock. Exits when the
-world, once seen, is gone, or on SIGINT/SIGTERM.
+world ends the run, on SIGINT/SIGTERM, or (status 1) when a world gone without
+ending it has not come back within ``--world-timeout`` s.
 """
 
 from __future__ import annotations
@@ -65,4 +66,4 @@ def main(args: argparse.Namespace) -> int:
     finally:
         proc.write_counters()
         proc.close()
-    return 0
+    return proc.exit_status

@@ -13,8 +13,9 @@ decoded and validated in full (as the Zenoh bus does) and handed to the
 
 It says it is alive (``alive/logger/0``) only once it is subscribed and the
 recording is open, so a launcher that waits for it loses no tick. It ends
-when the world, once seen, is gone (after draining what arrived), or on
-SIGINT/SIGTERM, and always closes the recording so the ``.rrd`` is complete.
+when the world ends the run (after draining what arrived), on SIGINT/SIGTERM,
+or when a world gone without ending it has not come back within
+``--world-timeout`` s, and always closes the recording so the ``.rrd`` is complete.
 """
 
 from __future__ import annotations
@@ -177,4 +178,4 @@ def main(args: argparse.Namespace) -> int:
     c = logger.recorder.counters()
     print(f"fxswarm logger: {c['frames']} frames logged, {logger.inbox.dropped} messages dropped "
           f"({logger.proc.stop_reason or 'done'})", file=sys.stderr)
-    return 0
+    return logger.proc.exit_status

@@ -31,11 +31,12 @@ from fxswarm.core.messages import Message
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.apply import process_counters, wrap_for_process
 from fxswarm.faults.plan import CLI_HELP as FAULT_HELP
-from fxswarm.runtime.zenoh_bus import ZenohBus, add_zenoh_arguments, options_from_args
+from fxswarm.runtime.zenoh_bus import ZenohBus, add_zenoh_arguments, options_from_args, wait_until
 
 #: Set by the launcher: a child whose parent is gone (even SIGKILLed) stops by itself.
 PARENT_ENV = "FXSWARM_PARENT_PID"
 CLOCKS = ("lockstep", "realtime")
+DEFAULT_WORLD_TIMEOUT_S = 60.0
 
 
 def add_process_arguments(p: argparse.ArgumentParser) -> None:
@@ -52,6 +53,10 @@ def add_process_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default=None,
                    help="run folder; this process writes its counters to OUT/processes/<role>-<id>.json")
     p.add_argument("--fault", action="append", default=None, metavar="SPEC", help=FAULT_HELP)
+    p.add_argument("--world-timeout", type=float, default=DEFAULT_WORLD_TIMEOUT_S, metavar="S",
+                   help="agents, leader, logger: how long to wait for a world that is gone without having "
+                        "ended the run (a network cut longer than the Zenoh lease, a frozen or crashed world) "
+                        f"before giving up, exit status 1 (default {DEFAULT_WORLD_TIMEOUT_S:g}; 0: forever)")
     add_zenoh_arguments(p)
 
 
@@ -116,6 +121,9 @@ class RoleProcess:
         self.stale_after = args.stale_after if args.stale_after is not None else 5 * scenario.dt
         self.alive: set[str] = set()  # tokens seen up (role/id)
         self.gone: set[str] = set()  # tokens seen up, then down
+        self.run_over = False  # the world's RUN_OVER token was seen: its going away ends this process
+        self.world_lost_at: float | None = None  # monotonic time the world went without ending the run
+        self.ended = False  # the world has ended the run (end_run): deliver nothing more
         self.node = None
         self.core = None
         self.after_deliver = None  # called after each delivered message (run_periodic_loop's early act)
@@ -148,9 +156,16 @@ class RoleProcess:
             self.stop("launcher gone")
 
     def watch(self, names: list[str]) -> None:
-        """Track the liveliness of these ``role/id`` names in :attr:`alive` / :attr:`gone`."""
+        """Track the liveliness of these ``role/id`` names in :attr:`alive` / :attr:`gone`
+        (and, with the world's, whether it has ended the run: :meth:`exit_with_world`)."""
         for name in names:
             self.bus.watch_alive(name, self._on_alive)
+        if "world/0" in names:
+            self.bus.watch_tokens(topics.RUN_OVER, self._on_run_over)
+
+    def _on_run_over(self, topic: str, up: bool) -> None:
+        if up:
+            self.run_over = True
 
     def _on_alive(self, name: str, up: bool) -> None:
         if up:
@@ -161,9 +176,46 @@ class RoleProcess:
             self.gone.add(name)
 
     def exit_with_world(self) -> None:
-        """Stop once the world, having been seen, is gone (the run is over or lost)."""
-        if "world/0" in self.gone:
-            self.stop("world gone")
+        """Stop once the world has ended the run (its ``RUN_OVER`` token, :meth:`end_run`).
+
+        A world gone without ending the run is lost, not finished: a network cut longer than
+        the Zenoh lease, a frozen or a crashed world. It may come back (Zenoh reconnects), so
+        wait for it, as a robot in the field would, up to ``--world-timeout`` s (0: forever);
+        then stop as ``world lost`` (exit status 1).
+        """
+        if self.run_over:
+            self.stop("run over")
+            return
+        if "world/0" not in self.gone:
+            if self.world_lost_at is not None:
+                self.world_lost_at = None
+                print(f"fxswarm {self.role} {self.ident}: the world is back", file=sys.stderr)
+            return
+        now = time.monotonic()
+        timeout = self.args.world_timeout
+        if self.world_lost_at is None:
+            self.world_lost_at = now
+            wait = f"up to {timeout:g} s" if timeout > 0 else "for as long as it takes"
+            print(f"fxswarm {self.role} {self.ident}: lost the world before it ended the run; "
+                  f"waiting {wait} for it to come back", file=sys.stderr)
+        elif timeout > 0 and now - self.world_lost_at >= timeout:
+            print(f"fxswarm {self.role} {self.ident}: the world has been gone {timeout:g} s; giving up",
+                  file=sys.stderr)
+            self.stop("world lost")
+
+    def end_run(self, waited_for: tuple[str, ...] = ("agent/", "leader/"), timeout: float = 1.5) -> None:
+        """The world: say the run is over (``RUN_OVER``), then give the processes it watched up to
+        ``timeout`` s to leave, so each has heard it before the world's going could tell it the
+        world is lost (liveliness changes through a router are not ordered among themselves).
+        Data arriving meanwhile is dropped."""
+        self.ended = True
+        self.bus.declare_token(topics.RUN_OVER)
+        wait_until(self.bus, lambda: not any(n.startswith(waited_for) for n in self.alive), timeout)
+
+    @property
+    def exit_status(self) -> int:
+        """0, or 1 if this process gave up on a lost world."""
+        return 1 if self.stop_reason == "world lost" else 0
 
     # --- the node ---------------------------------------------------------------------------
 
@@ -177,6 +229,8 @@ class RoleProcess:
 
     def deliver(self, topic: str, msg: Message) -> None:
         """The one way in: count staleness, hand ``msg`` to the node, publish what it returns."""
+        if self.ended:
+            return
         if not self.lockstep:
             now = time.monotonic()
             if msg.role == "world":

@@ -254,21 +254,30 @@ class ZenohBus:
         self._subscribers.append(self.session.declare_subscriber(f"{self.root}/{pattern}", on_sample))
 
     def declare_alive(self, role: str, ident: int | str) -> None:
-        self._tokens.append(self.session.liveliness().declare_token(f"{self.root}/{topics.alive_topic(role, ident)}"))
+        self.declare_token(topics.alive_topic(role, ident))
+
+    def declare_token(self, topic: str) -> None:
+        """Declare a liveliness token on ``topic``; it goes when the session closes (or is lost)."""
+        self._tokens.append(self.session.liveliness().declare_token(f"{self.root}/{topic}"))
 
     def watch_alive(self, pattern: str, handler: AliveHandler) -> None:
         """Call ``handler("role/id", up)`` from :meth:`poll` for tokens under ``alive/<pattern>``.
 
         Tokens already present are reported first (history).
         """
-        cut = len(self.root) + len("/alive/")
+        self.watch_tokens(f"alive/{pattern}", handler, cut="alive/")
+
+    def watch_tokens(self, pattern: str, handler: AliveHandler, cut: str = "") -> None:
+        """Call ``handler(topic, up)`` from :meth:`poll` for liveliness tokens on ``pattern``
+        (``topic`` without the swarm prefix nor ``cut``); tokens already present come first."""
+        skip = len(self.root) + 1 + len(cut)
         put = self._inbox.put
 
         def on_change(sample, handler=handler) -> None:
-            put((handler, str(sample.key_expr)[cut:], sample.kind == zenoh.SampleKind.PUT, _ALIVE))
+            put((handler, str(sample.key_expr)[skip:], sample.kind == zenoh.SampleKind.PUT, _ALIVE))
 
         self._subscribers.append(self.session.liveliness().declare_subscriber(
-            f"{self.root}/alive/{pattern}", on_change, history=True))
+            f"{self.root}/{pattern}", on_change, history=True))
 
     def wake(self) -> None:
         """Make a blocked :meth:`poll` return now (safe from a signal handler and from a handler)."""

@@ -213,6 +213,7 @@ def main(args: argparse.Namespace) -> int:
     proc = WorldProcess("world", 0, sc, args)
     extra: dict = {}
     code = 0
+    crashed = False
     try:
         node = build_node(sc, args)
         proc.watch(["leader/0", "agent/*"])
@@ -250,8 +251,13 @@ def main(args: argparse.Namespace) -> int:
             write_run(args.out, summary, world.trajectory())
         if not world.done:
             code = 1 if proc.stop_reason not in ("SIGTERM", "SIGINT") else 0
+    except BaseException:
+        crashed = True
+        raise
     finally:
         proc.write_counters(extra)
+        if not crashed:  # the others wait for a world that is gone without having said so
+            proc.end_run()
         proc.close()
     return code
 

@@ -1,0 +1,144 @@
+"""A world gone without having ended the run is lost, not finished: the others wait for it.
+
+Real processes, real sessions: an agent process against a world played by the test (a
+Zenoh session that declares the world's token, and ends the run or does not), and a whole
+swarm whose world is frozen for longer than the Zenoh lease.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from fxswarm.core.bus import RUN_OVER
+from fxswarm.runtime.launcher import free_port
+from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions, wait_until
+
+PAPER_FAST = Path(__file__).resolve().parents[1] / "configs" / "paper-fast.toml"
+
+
+@pytest.fixture
+def router():
+    port = free_port()
+    bus = ZenohBus("unused", ZenohOptions("router", listen=(f"tcp/127.0.0.1:{port}",), multicast=False))
+    yield f"tcp/127.0.0.1:{port}"
+    bus.close()
+
+
+def client(endpoint: str, swarm: str) -> ZenohBus:
+    return ZenohBus(swarm, ZenohOptions("client", connect=(endpoint,), multicast=False))
+
+
+class Agent:
+    """``fxswarm agent`` as a child process, its stderr read line by line on a thread."""
+
+    def __init__(self, tmp_path: Path, endpoint: str, swarm: str, world_timeout: float) -> None:
+        self.out = tmp_path
+        self.popen = subprocess.Popen(
+            [sys.executable, "-m", "fxswarm.cli", "agent", str(PAPER_FAST), "--id", "1", "--swarm", swarm,
+             "--mode", "client", "--connect", endpoint, "--no-multicast", "--world-timeout", str(world_timeout),
+             "--out", str(tmp_path)], stderr=subprocess.PIPE, text=True)
+        self.lines: queue.SimpleQueue = queue.SimpleQueue()
+        self.said: list[str] = []
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        for line in self.popen.stderr:
+            self.lines.put(line)
+
+    def wait_for_line(self, needle: str, timeout: float = 30.0) -> float:
+        """Wait until the agent says ``needle``; return when (monotonic)."""
+        end = time.monotonic() + timeout
+        while (left := end - time.monotonic()) > 0:
+            try:
+                line = self.lines.get(timeout=left)
+            except queue.Empty:
+                break
+            self.said.append(line)
+            if needle in line:
+                return time.monotonic()
+        raise AssertionError(f"the agent never said {needle!r}; it said: {''.join(self.said)[-2000:]}")
+
+    def counters(self) -> dict:
+        return json.loads((self.out / "processes" / "agent-1.json").read_text())
+
+    def stop(self) -> None:
+        if self.popen.poll() is None:
+            self.popen.kill()
+        self.popen.wait()
+
+
+def agent_up(endpoint: str, swarm: str) -> ZenohBus:
+    """A session that has seen agent 1's token: the agent is subscribed, to liveliness too."""
+    watcher = client(endpoint, swarm)
+    seen: list[str] = []
+    watcher.watch_alive("agent/1", lambda name, up: seen.append(name))
+    assert wait_until(watcher, lambda: seen, 30), "agent 1 never came up"
+    return watcher
+
+
+@pytest.mark.zenoh
+def test_an_agent_waits_for_a_lost_world_then_gives_up_with_status_1(tmp_path, router):
+    agent = Agent(tmp_path, router, "lost-for-good", world_timeout=1.0)
+    try:
+        watcher = agent_up(router, "lost-for-good")
+        world = client(router, "lost-for-good")
+        world.declare_alive("world", 0)
+        world.close()  # gone without RUN_OVER: a crash, as the agent sees it
+        lost_at = agent.wait_for_line("lost the world")
+        assert agent.popen.wait(timeout=30) == 1
+        assert time.monotonic() - lost_at >= 0.9  # it waited out --world-timeout first
+        agent.wait_for_line("giving up")
+        assert agent.counters()["stop_reason"] == "world lost"
+        watcher.close()
+    finally:
+        agent.stop()
+
+
+@pytest.mark.zenoh
+def test_an_agent_takes_a_world_back_and_leaves_when_the_run_is_over(tmp_path, router):
+    agent = Agent(tmp_path, router, "comes-back", world_timeout=60.0)
+    try:
+        watcher = agent_up(router, "comes-back")
+        world = client(router, "comes-back")
+        world.declare_alive("world", 0)
+        world.close()
+        agent.wait_for_line("lost the world")
+        assert agent.popen.poll() is None
+        world = client(router, "comes-back")  # the world again, e.g. after a network cut
+        world.declare_alive("world", 0)
+        agent.wait_for_line("the world is back")
+        world.declare_token(RUN_OVER)  # the run has ended: the agent leaves, its world still there
+        assert agent.popen.wait(timeout=30) == 0
+        assert agent.counters()["stop_reason"] == "run over"
+        world.close()
+        watcher.close()
+    finally:
+        agent.stop()
+
+
+@pytest.mark.zenoh
+def test_a_world_frozen_longer_than_the_lease_is_waited_for_and_the_run_ends_complete(launch_swarm):
+    swarm = launch_swarm(PAPER_FAST, duration=2.0, lease_ms=1000)
+    swarm.wait_for_sim_time(0.5)
+    swarm.freeze("world")
+    logs = [swarm.out / "logs" / f"agent-{i}.log" for i in range(1, 7)] + [swarm.out / "logs" / "leader.log"]
+    # Every other process has seen the world go (its lease ran out): what they print, waited on.
+    end = time.monotonic() + 30
+    while not all("lost the world" in log.read_text() for log in logs):
+        assert time.monotonic() < end, "not every process saw the frozen world go"
+        swarm.pump(0.1)
+    swarm.thaw("world")
+    summary = swarm.wait_done(timeout=120)
+    assert summary["complete"] and summary["ticks"] == 200
+    assert not swarm.deaths
+    assert all("the world is back" in log.read_text() for log in logs)
+    reasons = {name: c["stop_reason"] for name, c in summary["processes"].items() if name != "world-0"}
+    assert set(reasons.values()) == {"run over"}, reasons
