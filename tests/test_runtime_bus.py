@@ -11,8 +11,7 @@ import pytest
 
 from fxswarm.core.messages import Clock, Command, Estimate, Sense, WireError, decode, encode
 from fxswarm.core.scenario import load
-from fxswarm.runtime.launcher import free_port
-from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions, check_sender, wait_until
+from fxswarm.runtime.zenoh_bus import ZenohBus, check_sender, wait_until
 
 V = np.array([1.0, 2.0, 3.0])
 
@@ -39,21 +38,9 @@ def test_check_sender_rejects_a_message_that_does_not_belong(topic, msg):
         check_sender(topic, msg)
 
 
-@pytest.fixture
-def router():
-    port = free_port()
-    bus = ZenohBus("unused", ZenohOptions("router", listen=(f"tcp/127.0.0.1:{port}",), multicast=False))
-    yield f"tcp/127.0.0.1:{port}"
-    bus.close()
-
-
-def client(endpoint: str, swarm: str) -> ZenohBus:
-    return ZenohBus(swarm, ZenohOptions("client", connect=(endpoint,), multicast=False))
-
-
 @pytest.mark.zenoh
-def test_valid_messages_arrive_exactly_and_invalid_ones_are_counted_and_warned_once(router, capsys):
-    a, b = client(router, "iso-a"), client(router, "iso-a")
+def test_valid_messages_arrive_exactly_and_invalid_ones_are_counted_and_warned_once(zenoh_client, capsys):
+    a, b = zenoh_client("iso-a"), zenoh_client("iso-a")
     try:
         got = []
         a.subscribe("agent/*/cmd", lambda topic, msg: got.append((topic, msg)))
@@ -80,8 +67,8 @@ def test_valid_messages_arrive_exactly_and_invalid_ones_are_counted_and_warned_o
 
 
 @pytest.mark.zenoh
-def test_two_swarms_on_one_router_never_cross_talk(router):
-    a, b, a2 = client(router, "iso-a"), client(router, "iso-b"), client(router, "iso-a")
+def test_two_swarms_on_one_router_never_cross_talk(zenoh_client):
+    a, b, a2 = zenoh_client("iso-a"), zenoh_client("iso-b"), zenoh_client("iso-a")
     try:
         heard_a, heard_b = [], []
         a.subscribe("**", lambda t, m: heard_a.append(t))
@@ -141,10 +128,10 @@ def stay_until(bus: ZenohBus, done, timeout: float) -> bool:
 
 
 @pytest.mark.zenoh
-def test_poll_stay_runs_handlers_off_the_polling_thread_only_while_polling_and_still_validates(router):
+def test_poll_stay_runs_handlers_off_the_polling_thread_only_while_polling_and_still_validates(zenoh_client):
     import threading
 
-    a, b = client(router, "stay"), client(router, "stay")
+    a, b = zenoh_client("stay"), zenoh_client("stay")
     try:
         where, alive = [], []
         a.subscribe("agent/*/estimate", lambda topic, msg: where.append((msg.tick, threading.get_ident())))
@@ -180,8 +167,8 @@ def test_poll_stay_runs_handlers_off_the_polling_thread_only_while_polling_and_s
 
 
 @pytest.mark.zenoh
-def test_poll_stay_returns_on_wake_from_a_handler_and_reraises_a_handlers_error(router):
-    a, b = client(router, "stay-err"), client(router, "stay-err")
+def test_poll_stay_returns_on_wake_from_a_handler_and_reraises_a_handlers_error(zenoh_client):
+    a, b = zenoh_client("stay-err"), zenoh_client("stay-err")
     try:
         def handler(topic, msg):
             if msg.tick == 1:

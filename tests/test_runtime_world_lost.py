@@ -18,22 +18,9 @@ from pathlib import Path
 import pytest
 
 from fxswarm.core.bus import RUN_OVER
-from fxswarm.runtime.launcher import free_port
-from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions, wait_until
+from fxswarm.runtime.zenoh_bus import wait_until
 
 PAPER_FAST = Path(__file__).resolve().parents[1] / "configs" / "paper-fast.toml"
-
-
-@pytest.fixture
-def router():
-    port = free_port()
-    bus = ZenohBus("unused", ZenohOptions("router", listen=(f"tcp/127.0.0.1:{port}",), multicast=False))
-    yield f"tcp/127.0.0.1:{port}"
-    bus.close()
-
-
-def client(endpoint: str, swarm: str) -> ZenohBus:
-    return ZenohBus(swarm, ZenohOptions("client", connect=(endpoint,), multicast=False))
 
 
 class Agent:
@@ -75,51 +62,45 @@ class Agent:
         self.popen.wait()
 
 
-def agent_up(endpoint: str, swarm: str) -> ZenohBus:
-    """A session that has seen agent 1's token: the agent is subscribed, to liveliness too."""
-    watcher = client(endpoint, swarm)
+def lose_the_world(agent: Agent, zenoh_client, swarm: str) -> float:
+    """Play a world the agent sees come and go without ending the run (a crash, as the agent
+    sees it); return when the agent said it lost it."""
+    watcher = zenoh_client(swarm)
     seen: list[str] = []
     watcher.watch_alive("agent/1", lambda name, up: seen.append(name))
+    # Once its token is seen, the agent's liveliness subscriptions are in place too.
     assert wait_until(watcher, lambda: seen, 30), "agent 1 never came up"
-    return watcher
+    world = zenoh_client(swarm)
+    world.declare_alive("world", 0)
+    world.close()  # no RUN_OVER
+    return agent.wait_for_line("lost the world")
 
 
 @pytest.mark.zenoh
-def test_an_agent_waits_for_a_lost_world_then_gives_up_with_status_1(tmp_path, router):
+def test_an_agent_waits_for_a_lost_world_then_gives_up_with_status_1(tmp_path, router, zenoh_client):
     agent = Agent(tmp_path, router, "lost-for-good", world_timeout=1.0)
     try:
-        watcher = agent_up(router, "lost-for-good")
-        world = client(router, "lost-for-good")
-        world.declare_alive("world", 0)
-        world.close()  # gone without RUN_OVER: a crash, as the agent sees it
-        lost_at = agent.wait_for_line("lost the world")
+        lost_at = lose_the_world(agent, zenoh_client, "lost-for-good")
         assert agent.popen.wait(timeout=30) == 1
         assert time.monotonic() - lost_at >= 0.9  # it waited out --world-timeout first
         agent.wait_for_line("giving up")
         assert agent.counters()["stop_reason"] == "world lost"
-        watcher.close()
     finally:
         agent.stop()
 
 
 @pytest.mark.zenoh
-def test_an_agent_takes_a_world_back_and_leaves_when_the_run_is_over(tmp_path, router):
+def test_an_agent_takes_a_world_back_and_leaves_when_the_run_is_over(tmp_path, router, zenoh_client):
     agent = Agent(tmp_path, router, "comes-back", world_timeout=60.0)
     try:
-        watcher = agent_up(router, "comes-back")
-        world = client(router, "comes-back")
-        world.declare_alive("world", 0)
-        world.close()
-        agent.wait_for_line("lost the world")
+        lose_the_world(agent, zenoh_client, "comes-back")
         assert agent.popen.poll() is None
-        world = client(router, "comes-back")  # the world again, e.g. after a network cut
+        world = zenoh_client("comes-back")  # the world again, e.g. after a network cut
         world.declare_alive("world", 0)
         agent.wait_for_line("the world is back")
         world.declare_token(RUN_OVER)  # the run has ended: the agent leaves, its world still there
         assert agent.popen.wait(timeout=30) == 0
         assert agent.counters()["stop_reason"] == "run over"
-        world.close()
-        watcher.close()
     finally:
         agent.stop()
 
