@@ -105,17 +105,22 @@ def test_an_agent_takes_a_world_back_and_leaves_when_the_run_is_over(tmp_path, r
         agent.stop()
 
 
+def wait_for_logs(swarm, logs: list[Path], needle: str, timeout: float = 30.0) -> None:
+    """Pump the swarm until every log in ``logs`` says ``needle`` (a message, waited on)."""
+    end = time.monotonic() + timeout
+    while not all(needle in log.read_text() for log in logs):
+        said = {log.name: log.read_text()[-500:] for log in logs if needle not in log.read_text()}
+        assert time.monotonic() < end, f"never said {needle!r}: {said}"
+        swarm.pump(0.1)
+
+
 @pytest.mark.zenoh
 def test_a_world_frozen_longer_than_the_lease_is_waited_for_and_the_run_ends_complete(launch_swarm):
     swarm = launch_swarm(PAPER_FAST, duration=2.0, lease_ms=1000)
     swarm.wait_for_sim_time(0.5)
     swarm.freeze("world")
     logs = [swarm.out / "logs" / f"agent-{i}.log" for i in range(1, 7)] + [swarm.out / "logs" / "leader.log"]
-    # Every other process has seen the world go (its lease ran out): what they print, waited on.
-    end = time.monotonic() + 30
-    while not all("lost the world" in log.read_text() for log in logs):
-        assert time.monotonic() < end, "not every process saw the frozen world go"
-        swarm.pump(0.1)
+    wait_for_logs(swarm, logs, "lost the world")  # every other process saw it go: its lease ran out
     swarm.thaw("world")
     summary = swarm.wait_done(timeout=120)
     assert summary["complete"] and summary["ticks"] == 200
@@ -123,3 +128,4 @@ def test_a_world_frozen_longer_than_the_lease_is_waited_for_and_the_run_ends_com
     assert all("the world is back" in log.read_text() for log in logs)
     reasons = {name: c["stop_reason"] for name, c in summary["processes"].items() if name != "world-0"}
     assert set(reasons.values()) == {"run over"}, reasons
+

@@ -121,7 +121,7 @@ class RoleProcess:
         self.stale_after = args.stale_after if args.stale_after is not None else 5 * scenario.dt
         self.alive: set[str] = set()  # tokens seen up (role/id)
         self.gone: set[str] = set()  # tokens seen up, then down
-        self.run_over = False  # the world's RUN_OVER token was seen: its going away ends this process
+        self.run_over = False  # the world's RUN_OVER token was seen: the run is over, this process leaves
         self.world_lost_at: float | None = None  # monotonic time the world went without ending the run
         self.ended = False  # the world has ended the run (end_run): deliver nothing more
         self.node = None
