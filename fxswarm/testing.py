@@ -157,6 +157,15 @@ class SwarmUnderTest:
     def thaw(self, name: str) -> None:
         self.swarm.thaw(name)
 
+    def wait_alive(self, name: str, timeout: float = 30.0) -> None:
+        """Block until ``name``'s liveliness token is up (e.g. again, after a freeze past the lease)."""
+        self.swarm.wait_alive(name, timeout)
+
+    def wait_gone(self, name: str, timeout: float = 10.0) -> None:
+        """Block until ``name``'s liveliness token is gone (it died, or, frozen or cut off, its
+        Zenoh lease ran out)."""
+        self.swarm.wait_gone(name, timeout)
+
     def restart(self, name: str, timeout: float = 30.0) -> None:
         self.swarm.restart(name, timeout)
 

@@ -129,3 +129,26 @@ def test_a_world_frozen_longer_than_the_lease_is_waited_for_and_the_run_ends_com
     reasons = {name: c["stop_reason"] for name, c in summary["processes"].items() if name != "world-0"}
     assert set(reasons.values()) == {"run over"}, reasons
 
+
+
+@pytest.mark.zenoh
+def test_an_agent_frozen_longer_than_the_lease_takes_the_world_back_and_flies_on(launch_swarm):
+    # The agent's side of a network cut past the lease: on thaw its own links have expired, the
+    # world is gone to it until Zenoh reconnects, and it must wait, not leave (nor be a death).
+    # Routed: in a mesh, Zenoh can leave one side of an expired peer link split for good (the
+    # launcher never sees the agent's token again; docs/DESIGN.md, eclipse-zenoh/zenoh#2806).
+    swarm = launch_swarm(PAPER_FAST, duration=60.0, lease_ms=1000, tick_timeout=0.1, topology="routed")
+    swarm.wait_for_sim_time(0.5)
+    swarm.freeze("agent-2")
+    swarm.wait_gone("agent-2", timeout=20)
+    swarm.thaw("agent-2")
+    swarm.wait_alive("agent-2", timeout=30)
+    back_at = swarm.sim_time()
+    swarm.step(100, timeout=60)
+    how = swarm.stop()  # SIGTERM: everyone writes their counters
+    assert how.get("agent-2") == "SIGTERM" and not swarm.deaths, (how, [d.describe() for d in swarm.deaths])
+    # It answered the world again once back: its missed ticks are (about) those before.
+    summary = swarm.summary()
+    misses = summary["missed_ticks_per_robot"]
+    assert summary["ticks"] * swarm.scenario.dt - back_at >= 1.0
+    assert misses["2"] <= back_at / swarm.scenario.dt + 10, (back_at, misses)
