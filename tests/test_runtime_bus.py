@@ -217,6 +217,10 @@ def test_the_launchers_topology_comes_from_the_command_line_else_the_scenario_el
     assert load(six).n <= MESH_MAX_ROBOTS < load(many).n
     assert Swarm(str(six), tmp_path).options.mode == "peer"  # auto: a mesh of 6
     assert Swarm(str(many), tmp_path).options.mode == "client"  # auto: 24 go through the router
+    # auto: routed when a process is to be frozen (a mesh link can stay split after a freeze
+    # past the lease), whether the scenario or the command line plans it.
+    assert Swarm(str(six), tmp_path, faults=("freeze agent:2 at=1 thaw=3",)).topology == "routed"
+    assert Swarm(str(six), tmp_path, faults=("kill agent:2 at=1 restart=3",)).topology == "mesh"
     routed = scenario_with(six, tmp_path, **{"zenoh.topology": "routed"})
     assert Swarm(str(routed), tmp_path).topology == "routed"
     assert Swarm(str(routed), tmp_path, topology="mesh").topology == "mesh"  # the command line wins

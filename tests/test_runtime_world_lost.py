@@ -116,7 +116,7 @@ def wait_for_logs(swarm, logs: list[Path], needle: str, timeout: float = 30.0) -
 
 @pytest.mark.zenoh
 def test_a_world_frozen_longer_than_the_lease_is_waited_for_and_the_run_ends_complete(launch_swarm):
-    swarm = launch_swarm(PAPER_FAST, duration=2.0, lease_ms=1000)
+    swarm = launch_swarm(PAPER_FAST, duration=2.0, lease_ms=1000, topology="routed")  # why: below
     swarm.wait_for_sim_time(0.5)
     swarm.freeze("world")
     logs = [swarm.out / "logs" / f"agent-{i}.log" for i in range(1, 7)] + [swarm.out / "logs" / "leader.log"]

@@ -67,6 +67,20 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def auto_topology(scenario: Scenario, faults: tuple[str, ...] | list[str] = ()) -> str:
+    """What ``--topology auto`` picks: a mesh up to :data:`MESH_MAX_ROBOTS` robots, else routed;
+    and routed whenever the plan freezes a process (its ``[[faults.processes]]`` or ``--fault``
+    specs). A freeze longer than the Zenoh lease (in lock-step, a frozen robot's ticks close at
+    ``--tick-timeout`` each, so most are) can leave a mesh link that expired on one side only
+    split for good: some peers never see the thawed process's token again
+    (eclipse-zenoh/zenoh#2806; docs/DESIGN.md "End of run, and a lost world")."""
+    if scenario.n > MESH_MAX_ROBOTS:
+        return "routed"
+    if any(f.action == "freeze" for f in ProcessSchedule.of(scenario, faults).faults):
+        return "routed"
+    return "mesh"
+
+
 def topology_options(topology: str, router: str, lease_ms: int | None = None) -> ZenohOptions:
     """How a process on this machine joins a ``mesh`` or ``routed`` swarm whose router listens at
     ``router``: a mesh peer meets the others there (gossip) and then talks to them over direct
@@ -184,7 +198,7 @@ class Swarm:
         if self.topology not in TOPOLOGIES:
             raise ValueError(f"topology: expected one of {', '.join(TOPOLOGIES)}, got {self.topology!r}")
         if self.topology == "auto":
-            self.topology = "mesh" if self.scenario.n <= MESH_MAX_ROBOTS else "routed"
+            self.topology = auto_topology(self.scenario, self.faults)
         self.options = topology_options(self.topology, self.endpoint, self.lease_ms)
 
     # --- commands --------------------------------------------------------------------------
@@ -463,7 +477,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="lock-step: a tick waits at most S s for its commands (default 1)")
     p.add_argument("--topology", choices=TOPOLOGIES, default=None,
                    help="mesh: peers on direct links, the router only where they meet; routed: every "
-                        f"message through the router; auto: mesh up to {MESH_MAX_ROBOTS} robots (default: "
+                        f"message through the router; auto: mesh up to {MESH_MAX_ROBOTS} robots unless a process "
+                        "is to be frozen (default: "
                         "the scenario's [zenoh] topology, else auto)")
     p.add_argument("--lease-ms", type=int, default=None, help="zenoh lease (how fast a frozen process is seen gone)")
     p.add_argument("--max-lag", type=int, default=None, metavar="TICKS",
