@@ -256,9 +256,11 @@ def main(args: argparse.Namespace) -> int:
         raise
     finally:
         proc.write_counters(extra)
-        if not crashed:  # the others wait for a world that is gone without having said so
-            proc.end_run()
-        proc.close()
+        try:
+            if not crashed:  # the others wait for a world that is gone without having said so
+                proc.end_run()
+        finally:
+            proc.close()  # always: an open session hangs the exit
     return code
 
 
