@@ -365,22 +365,32 @@ REJOIN_SETTLE_S = 10.0  # simulation s a restarted robot gets to fly back into f
 SILENT_HOLD_S = DegradedLimits.silent_hold  # the world holds a robot silent longer than this at zero velocity
 
 
-@pytest.fixture(scope="module")
-def broken_run(project_factory) -> tuple[ComposeProject, FaultObservations]:
-    """The paper scenario in real time (speed 1), 55 s instead of 40 (room for both faults and
-    the recovery from each on a loaded machine); agent 3 killed and started again, agent 5 cut
-    off the network for a few seconds; then run to its end."""
+def flying_realtime_swarm(project_factory, duration: float) -> tuple[ComposeProject, Observer]:
+    """The paper scenario as a compose project in real time (speed 1), ``duration`` s long: up,
+    watched, every agent alive and robot 5 flying past t = 5 s."""
     text = SCENARIO.read_text()
     assert "duration = 40.0" in text
-    p = project_factory(text.replace("duration = 40.0", "duration = 55.0"), FXSWARM_CLOCK="realtime",
+    p = project_factory(text.replace("duration = 40.0", f"duration = {duration}"), FXSWARM_CLOCK="realtime",
                         FXSWARM_SPEED="1")
-    obs = FaultObservations()
     p.up()
     watcher = Observer(p.router_endpoint(), p.swarm)
     try:
         watcher.wait("all six agents alive", lambda: len(watcher.alive) == 6, 120)
         watcher.wait("simulation time 5 s", lambda: watcher.latest_t(5) >= 5.0, 120)
+    except BaseException:
+        watcher.close()
+        raise
+    return p, watcher
 
+
+@pytest.fixture(scope="module")
+def broken_run(project_factory) -> tuple[ComposeProject, FaultObservations]:
+    """The paper scenario in real time (speed 1), 55 s instead of 40 (room for both faults and
+    the recovery from each on a loaded machine); agent 3 killed and started again, agent 5 cut
+    off the network for a few seconds; then run to its end."""
+    p, watcher = flying_realtime_swarm(project_factory, 55.0)
+    obs = FaultObservations()
+    try:
         # docker kill: the process dies with its container; liveliness says so at once.
         agent3 = p.container("agent-3")
         _run(["docker", "kill", agent3], 30, "docker kill agent-3")
@@ -500,14 +510,8 @@ def test_docker_network_cut_past_the_lease_the_agent_waits_for_the_world_and_rej
     """Agent 5 off the network until the router has given it up (the Zenoh lease, 10 s), and its
     own session the world: it must wait for the world (it did not end the run), take it back
     when the network does, and fly on; the run completes."""
-    text = SCENARIO.read_text()
-    p = project_factory(text.replace("duration = 40.0", "duration = 45.0"), FXSWARM_CLOCK="realtime",
-                        FXSWARM_SPEED="1")
-    p.up()
-    watcher = Observer(p.router_endpoint(), p.swarm)
+    p, watcher = flying_realtime_swarm(project_factory, 45.0)
     try:
-        watcher.wait("all six agents alive", lambda: len(watcher.alive) == 6, 120)
-        watcher.wait("simulation time 5 s", lambda: watcher.latest_t(5) >= 5.0, 120)
         agent5 = p.container("agent-5")
         t0 = time.monotonic()
         _run(["docker", "network", "disconnect", p.network(), agent5], 30, "network disconnect")
