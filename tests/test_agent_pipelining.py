@@ -108,3 +108,53 @@ def test_an_early_estimate_does_not_kill_the_robot_before_its_last_tick():
     out = feed(mortal, [estimate(sc, 2, 0, [1, 0, 0])])
     assert [m.tick for _, m in out if isinstance(m, Command)] == [0]
     assert feed(mortal, [sense(sc, 1, [1, 2, 3])]) == [] and mortal.state == "killed"
+
+
+def test_the_leader_sends_the_next_ticks_state_on_each_clock_and_catches_up_after_a_gap():
+    from fxswarm.core.messages import Clock
+    from fxswarm.leader.node import LeaderNode
+
+    sc = load(PAPER_FAST)
+    node = LeaderNode(sc)
+
+    def clock(k: int) -> list[int]:
+        out = node.handle(topics.CLOCK, Clock("world", 0, k + 1, k, k * sc.dt))
+        for _, m in out:
+            np.testing.assert_array_equal(m.p0, sc.leader.position(m.t))
+            assert m.t == m.tick * sc.dt
+        return [m.tick for _, m in out]
+
+    assert clock(0) == [0, 1]  # the first clock: its own tick's state and the next
+    assert clock(1) == [2]
+    assert clock(5) == [5, 6]  # after a gap (a restarted leader): this tick's too
+    last = sc.ticks - 1
+    assert clock(last - 1) == [last - 1, last] and clock(last) == []  # none for a tick never reached
+
+
+def test_an_early_leader_state_waits_for_its_tick():
+    sc = load(PAPER_FAST)
+    early, plain = AgentNode(sc, 1), AgentNode(sc, 1)  # robot 1 is pinned
+    tick0 = [sense(sc, 0, [1, 2, 3]), estimate(sc, 2, 0, [1, 0, 0]), estimate(sc, 6, 0, [0, 1, 0])]
+    feed(early, tick0)
+    feed(plain, tick0)
+    assert feed(early, [leader(sc, 1)]) == []  # for tick 1: robot 1 still waits for tick 0's
+    (_, cmd_early), _ = feed(early, [leader(sc, 0)])
+    (_, cmd_plain), _ = feed(plain, [leader(sc, 0)])
+    np.testing.assert_array_equal(cmd_early.v, cmd_plain.v)
+    # On tick 1 the early state is held: robot 1 acts without waiting for the leader again.
+    out = feed(early, [sense(sc, 1, [1, 2, 3]), estimate(sc, 2, 1, [1, 0, 0]), estimate(sc, 6, 1, [0, 1, 0])])
+    assert [m.tick for _, m in out if isinstance(m, Command)] == [1]
+    assert early.leader.tick == 1 and not early.ahead
+
+
+def test_an_early_leader_state_does_not_kill_the_robot_before_its_last_tick():
+    from fxswarm.faults.plan import ProcessFault
+    from fxswarm.faults.process import Mortal
+
+    sc = load(PAPER_FAST)
+    mortal = Mortal(lambda: AgentNode(sc, 1), [ProcessFault("agent:1", "kill", 1 * sc.dt, None)])
+    feed(mortal, [sense(sc, 0, [1, 2, 3]), estimate(sc, 2, 0, [1, 0, 0]), estimate(sc, 6, 0, [0, 1, 0])])
+    assert feed(mortal, [leader(sc, 1)]) == []  # for the tick the robot dies at: it waits
+    out = feed(mortal, [leader(sc, 0)])
+    assert [m.tick for _, m in out if isinstance(m, Command)] == [0]
+    assert feed(mortal, [sense(sc, 1, [1, 2, 3])]) == [] and mortal.state == "killed"

@@ -64,7 +64,7 @@ class AgentNode:
         # arrives; a neighbour's estimate for a tick after the one this robot acts on next waits
         # in `ahead` until then (docs/DESIGN.md "Lock-step pipelining").
         self.estimate_tick = -1  # the newest tick whose estimate this robot has sent
-        self.ahead: dict[int, list[Estimate]] = {}  # per neighbour: estimates for later ticks
+        self.ahead: dict[int, list[Message]] = {}  # per neighbour (0: the leader): messages for later ticks
         self.seq_estimate = 0
         self.seq_command = 0
         self.speed_limited = 0  # how often the optional speed limit bit
@@ -119,7 +119,9 @@ class AgentNode:
         elif isinstance(msg, LeaderState):
             if self.pinned:
                 self.in_links.heard(0, msg.seq, msg.tick)
-                if self.leader is None or msg.tick >= self.leader.tick:
+                if self.lockstep and msg.tick > self.next_tick():
+                    self.ahead.setdefault(0, []).append(msg)  # pipelined: for a tick to come
+                elif self.leader is None or msg.tick >= self.leader.tick:
                     self.leader = msg
         if self.lockstep and self.ready():
             out += self.act_tick()
@@ -131,15 +133,19 @@ class AgentNode:
         return max(self.acted_tick + 1, self.sense.tick if self.sense is not None else 0)
 
     def _take_ahead(self, upto: int) -> None:
-        """Hold each neighbour's newest waiting estimate for a tick up to ``upto``."""
+        """Hold each neighbour's (and, key 0, the leader's) newest waiting message for a tick up
+        to ``upto``."""
         for j, waiting in list(self.ahead.items()):
             due = [m for m in waiting if m.tick <= upto]
             if not due:
                 continue
             newest = max(due, key=lambda m: m.tick)
-            held = self.estimates.get(j)
+            held = self.leader if j == 0 else self.estimates.get(j)
             if held is None or newest.tick >= held.tick:
-                self.estimates[j] = newest
+                if j == 0:
+                    self.leader = newest
+                else:
+                    self.estimates[j] = newest
             rest = [m for m in waiting if m.tick > upto]
             if rest:
                 self.ahead[j] = rest

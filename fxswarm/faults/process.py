@@ -19,8 +19,11 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from fxswarm.core import bus as topics
-from fxswarm.core.messages import Estimate, Message
+from fxswarm.core.messages import Estimate, LeaderState, Message
 from fxswarm.faults.plan import ProcessFault
+
+#: What lock-step sends a tick early (docs/DESIGN.md "Lock-step pipelining").
+PIPELINED = (Estimate, LeaderState)
 
 
 def active_fault(faults: list[ProcessFault] | tuple[ProcessFault, ...], t: float) -> ProcessFault | None:
@@ -45,7 +48,7 @@ class Mortal:
         self.generations = [self.node]
         self.state = "up"
         self.backlog: list[tuple[str, Message]] = []
-        self.early: list[tuple[str, Message]] = []  # estimates for a time past a kill or restart
+        self.early: list[tuple[str, Message]] = []  # pipelined messages for a time past a kill or restart
         self.now = float("-inf")
         self.restarts = 0
 
@@ -56,14 +59,15 @@ class Mortal:
         return self.node.subscriptions()
 
     def handle(self, topic: str, msg: Message) -> list[topics.Outgoing]:
-        if isinstance(msg, Estimate) and msg.t > self.now and \
+        if isinstance(msg, PIPELINED) and msg.t > self.now and \
                 active_fault(self.faults, msg.t) is not active_fault(self.faults, self.now):
-            # Lock-step sends a neighbour's estimate a tick early: across a kill or a restart it
-            # is for the node alive at its time, so it waits until this node's time gets there.
+            # Lock-step sends a neighbour's estimate and the leader's state a tick early: across
+            # a kill or a restart it is for the node alive at its time, so it waits until this
+            # node's time gets there.
             self.early.append((topic, msg))
             return []
         out = self._handle(topic, msg)
-        if self.early and not isinstance(msg, Estimate):
+        if self.early and not isinstance(msg, PIPELINED):
             due = [(tp, m) for tp, m in self.early if m.t <= self.now]
             self.early = [(tp, m) for tp, m in self.early if m.t > self.now]
             for tp, m in due:
