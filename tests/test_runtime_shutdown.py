@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -138,3 +139,28 @@ def test_a_frozen_agent_costs_missed_ticks_never_a_deadlock_and_a_restart_rejoin
     assert summary["missed_ticks_per_robot"]["2"] >= 5
     assert counters["agent-5"]["sent"] > 0 and counters["agent-5"]["received"] > 0  # the restarted agent rejoined
     assert not swarm.deaths
+
+
+def test_an_exit_at_run_over_is_planned_even_while_the_world_is_still_there(tmp_path):
+    # The world waits for its processes to leave once it has ended the run, so an agent may exit
+    # (status 0) while the world still runs: what it wrote before exiting says why it left.
+    from fxswarm.runtime.launcher import Child, Swarm
+
+    swarm = Swarm(str(PAPER_FAST), tmp_path, logger=False)
+    world = Child("world", "world", 0, [], tmp_path / "world.log")
+    world.popen = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE)
+    swarm.alive.add(world.token)
+    swarm.children = {"world": world}
+    try:
+        (tmp_path / "processes").mkdir()
+        for ident, reason in ((1, "run over"), (2, "SIGTERM"), (3, None)):
+            child = Child(f"agent-{ident}", "agent", ident, [], tmp_path / f"agent-{ident}.log")
+            child.popen = subprocess.Popen([sys.executable, "-c", "pass"])
+            child.popen.wait()
+            if reason is not None:
+                (tmp_path / "processes" / f"agent-{ident}.json").write_text(json.dumps({"stop_reason": reason}))
+            swarm.children[child.name] = child
+        assert sorted(d.child.name for d in swarm.poll(0)) == ["agent-2", "agent-3"]
+    finally:
+        world.popen.stdin.close()
+        world.popen.wait()

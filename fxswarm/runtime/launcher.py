@@ -321,9 +321,18 @@ class Swarm:
             code = child.popen.poll()
             if code is not None:
                 child.reported = True
-                if not (run_over and code == 0):
+                if not (code == 0 and (run_over or self._left_at_run_over(child))):
                     deaths.append(Death(child, code))
         return deaths
+
+    def _left_at_run_over(self, child: Child) -> bool:
+        """Whether ``child`` wrote, before it exited, that it left because the world ended the run
+        (the world waits for its processes to leave before it exits itself)."""
+        try:
+            counters = json.loads((self.out / "processes" / f"{child.role}-{child.ident}.json").read_text())
+        except (OSError, ValueError):
+            return False
+        return counters.get("stop_reason") == "run over"
 
     def wait_alive(self, name: str, timeout: float = 30.0) -> None:
         self._wait_alive([self.children[name]], time.monotonic() + timeout)
