@@ -172,16 +172,25 @@ def test_mortal_node_dies_restarts_fresh_and_a_frozen_one_gets_its_backlog():
         built.append(AgentNode(sc, 1))
         return built[-1]
 
+    # The node's time is its own sensing's (a leader state, like an estimate, is sent a tick
+    # early in lock-step, so one past a kill or restart waits for the node's time to get there).
+    def sense(k: int, t: float) -> tuple[str, Sense]:
+        return "world/sense/1", Sense("world", 0, k, k, t, 1, np.zeros(3), None, None)
+
     m = Mortal(build, [ProcessFault("agent:1", "kill", 0.1, 0.2)])
     assert m.handle("clock", Clock("world", 0, 1, 5, 0.05)) == []
+    assert m.handle(*sense(15, 0.15)) == []
     assert m.handle("leader/state", LeaderState("leader", 0, 1, 15, 0.15, np.ones(3))) == []
-    assert built[0].leader is None  # dead: heard nothing
+    assert built[0].leader is None and built[0].sense is None  # dead: heard nothing
+    m.handle(*sense(25, 0.25))
     m.handle("leader/state", LeaderState("leader", 0, 1, 25, 0.25, np.ones(3)))
     assert len(built) == 2 and m.restarts == 1 and built[1].leader.tick == 25
 
     f = Mortal(lambda: AgentNode(sc, 1), [ProcessFault("agent:1", "freeze", 0.1, 0.2)])
+    f.handle(*sense(15, 0.15))
     f.handle("leader/state", LeaderState("leader", 0, 1, 15, 0.15, np.ones(3)))
-    assert f.node.leader is None and len(f.backlog) == 1
+    assert f.node.leader is None and len(f.backlog) == 2
+    f.handle(*sense(21, 0.21))
     f.handle("leader/state", LeaderState("leader", 0, 1, 21, 0.21, np.ones(3)))
     assert f.node.leader.tick == 21 and not f.backlog
 
