@@ -531,4 +531,6 @@ def test_docker_network_cut_past_the_lease_the_agent_waits_for_the_world_and_rej
     with np.load(p.out / "trajectory.npz") as traj:
         err = formation_errors({k: traj[k] for k in ("p", "p0", "offsets")})
     print(f"robot 5 final formation error {err[-1, 4]:.3f} m (worst robot {err[-1].max():.3f} m)")
-    assert err[-1, 4] <= 0.5  # 0.25 m in two runs by hand
+    # Back in formation: 0.15-0.58 m in 3 runs (real time on a loaded machine; with robot 5
+    # left behind, held still while the leader climbs at 1 m/s, it would be metres off).
+    assert err[-1, 4] <= 1.0
