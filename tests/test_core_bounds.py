@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fxswarm.core.bounds import estimator_bound_printed, fixed_time_bound, settling_time, settling_time_limit
-from fxswarm.core.control import BehaviourGains, EstimatorGains
+from fxswarm.core.control import BehaviourGains
 from fxswarm.core.scenario import load
 
 PAPER = BehaviourGains(lam=1.0, b1=0.6, b2=0.6, r0=0.9, r1=1.2, r2=0.6)

@@ -14,7 +14,6 @@ import pytest
 from fxswarm.core.messages import (SCHEMA_VERSION, Clock, Command, Estimate, LeaderState, Message, Sense, WireError,
                                    WorldState, decode, encode)
 from fxswarm.core.metrics import formation_errors
-from fxswarm.core.scenario import load
 from fxswarm.runtime.output import load_trajectory
 from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions, check_sender
 from fxswarm.testing import dump_toml
@@ -52,7 +51,6 @@ def test_lockstep_processes_with_faults_match_the_simulator_bit_for_bit(launch_s
     config = scenario_file(tmp_path, 1.5, MIXED_FAULTS)
     swarm = launch_swarm(config)
     summary = swarm.wait_done(timeout=180)
-    sc = load(config)
     expected_summary = swarm.assert_matches_sim()
     assert summary["complete"] and summary["missed_ticks"] == 0
     # Each receiver counted its own inbound links; together they are the simulator's counts.
