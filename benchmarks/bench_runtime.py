@@ -37,6 +37,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from fxswarm.runtime.launcher import Swarm, free_port, topology_options  # noqa: E402
+from fxswarm.runtime.zenoh_bus import TOPOLOGIES  # noqa: E402
 from fxswarm.testing import scenario_with  # noqa: E402
 
 PONG = r"""
@@ -216,7 +217,7 @@ def main() -> int:
     p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "runtime.json"))
     p.add_argument("--quick", action="store_true", help="fewer ticks (a smoke run)")
     p.add_argument("--only", choices=("pingpong", "lockstep", "realtime"), action="append")
-    p.add_argument("--topology", choices=("auto", "mesh", "routed"), default="auto",
+    p.add_argument("--topology", choices=TOPOLOGIES, default="auto",
                    help="of the swarms (default: what `fxswarm run` picks, mesh for 6 robots, routed for 24)")
     args = p.parse_args()
     only = set(args.only or ("pingpong", "lockstep", "realtime"))

@@ -110,19 +110,11 @@ class AgentNode:
         elif isinstance(msg, Estimate):
             if msg.robot in self.neighbour_ids and msg.robot != self.id:
                 self.in_links.heard(msg.robot, msg.seq, msg.tick)
-                if self.lockstep and msg.tick > self.next_tick():
-                    self.ahead.setdefault(msg.robot, []).append(msg)
-                else:
-                    held = self.estimates.get(msg.robot)
-                    if held is None or msg.tick >= held.tick:
-                        self.estimates[msg.robot] = msg
+                self._take(msg.robot, msg)
         elif isinstance(msg, LeaderState):
             if self.pinned:
                 self.in_links.heard(0, msg.seq, msg.tick)
-                if self.lockstep and msg.tick > self.next_tick():
-                    self.ahead.setdefault(0, []).append(msg)  # pipelined: for a tick to come
-                elif self.leader is None or msg.tick >= self.leader.tick:
-                    self.leader = msg
+                self._take(0, msg)
         if self.lockstep and self.ready():
             out += self.act_tick()
         return out
@@ -132,6 +124,24 @@ class AgentNode:
         sensing's if the world moved on without it)."""
         return max(self.acted_tick + 1, self.sense.tick if self.sense is not None else 0)
 
+    def _take(self, j: int, msg: Estimate | LeaderState) -> None:
+        """A neighbour's estimate (``j``: its id) or the leader's state (``j`` = 0): held now, or,
+        in lock-step, kept in ``ahead`` if it is for a tick after the one this robot acts on next
+        (sent a tick early: pipelined)."""
+        if self.lockstep and msg.tick > self.next_tick():
+            self.ahead.setdefault(j, []).append(msg)
+        else:
+            self._hold(j, msg)
+
+    def _hold(self, j: int, msg: Estimate | LeaderState) -> None:
+        """Hold ``msg`` as sender ``j``'s latest (0: the leader), unless a newer one is held."""
+        held = self.leader if j == 0 else self.estimates.get(j)
+        if held is None or msg.tick >= held.tick:
+            if j == 0:
+                self.leader = msg
+            else:
+                self.estimates[j] = msg
+
     def _take_ahead(self, upto: int) -> None:
         """Hold each neighbour's (and, key 0, the leader's) newest waiting message for a tick up
         to ``upto``."""
@@ -139,13 +149,7 @@ class AgentNode:
             due = [m for m in waiting if m.tick <= upto]
             if not due:
                 continue
-            newest = max(due, key=lambda m: m.tick)
-            held = self.leader if j == 0 else self.estimates.get(j)
-            if held is None or newest.tick >= held.tick:
-                if j == 0:
-                    self.leader = newest
-                else:
-                    self.estimates[j] = newest
+            self._hold(j, max(due, key=lambda m: m.tick))
             rest = [m for m in waiting if m.tick > upto]
             if rest:
                 self.ahead[j] = rest
