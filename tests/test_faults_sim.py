@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import tomllib
 from pathlib import Path
 
@@ -39,9 +40,9 @@ def test_paper_fast_with_20_percent_loss_and_50_ms_delay_on_every_estimate_link(
     clean_summary, _ = clean
     assert summary["ticks"] == clean_summary["ticks"] and summary["counters"]["missed_ticks"] == 0
     assert summary["min_object_distance_m"] >= 1.5
-    assert summary["formation_error_final_m"] <= 1.0
-    # Delay costs decimetres against the 1 m/s climb: worse than the clean run, and reported.
-    assert summary["formation_error_final_m"] > clean_summary["formation_error_final_m"]
+    # Delay compensation (the default) carries each late estimate forward to the robot's time:
+    # the formation ends within centimetres of the clean run's (0.06 m), not decimetres behind.
+    assert summary["formation_error_final_m"] <= clean_summary["formation_error_final_m"] + 0.1
     links = summary["faults"]["links"]
     estimates = {k: v for k, v in links.items() if k.endswith("/estimate")}
     assert len(estimates) == 12  # the ring's 12 directed links
@@ -49,6 +50,17 @@ def test_paper_fast_with_20_percent_loss_and_50_ms_delay_on_every_estimate_link(
     assert 0.17 < sum(v["dropped"] for v in estimates.values()) / sent < 0.23
     assert all(v["delayed"] > 0 for v in estimates.values())
     assert all(v["dropped"] == 0 for k, v in links.items() if not k.endswith("/estimate"))
+
+
+def test_without_delay_compensation_50_ms_of_delay_costs_decimetres(clean):
+    sc = dataclasses.replace(load(ROOT / "configs" / "faults-lossy.toml"), delay_compensation="none")
+    summary, _ = run(sc)
+    clean_summary, _ = clean
+    # The paper's law on held values: each hop's delay times the 1 m/s climb, compounded over the
+    # graph, becomes lag behind the leader (docs/DESIGN.md "Delay compensation").
+    assert summary["formation_error_final_m"] > clean_summary["formation_error_final_m"] + 0.3
+    assert summary["formation_error_final_m"] <= 1.0
+    assert summary["min_object_distance_m"] >= 1.5
 
 
 def test_same_seed_same_run_other_seed_other_run():

@@ -34,26 +34,20 @@ def test_realtime_swarm_flies_toward_formation_and_measures_its_latency(launch_s
 @pytest.mark.zenoh
 @pytest.mark.slow
 def test_paper_fast_in_real_time_at_speed_4_meets_the_paper_outcome(launch_swarm):
-    """The issue's must-show: passes when the outcome holds, fails when it does not on a machine
-    that can serve 400 ticks/s in real time.
+    """The issue's must-show, asserted on every machine.
 
-    Real-time accuracy is bounded by the latency counted in ticks (docs/DESIGN.md): when the
-    median sensing-to-command latency exceeds a tick (2.5 ms of wall time at speed 4), other
-    work is starving the swarm's processes and a missed outcome says nothing about the swarm:
-    the test is then skipped with the figures instead. (A met outcome counts whatever the load:
-    one clean-clone run met it, 0.21 m at 3.7x, with a median latency of 2.55 ms.)
+    The machine need not keep up with 400 ticks/s: the world slows its clock rather than
+    integrate on stale commands (``achieved_speed``), and each robot carries its neighbours'
+    late estimates forward to its own time (delay compensation, docs/DESIGN.md), so latency
+    counted in ticks no longer turns into lag behind the climbing leader. Without the
+    compensation the final formation error met 0.25 m in 1 run of 9 (0.43-0.62 m in the others).
     """
     swarm = launch_swarm(PAPER_FAST, clock="realtime", speed=4.0)
     summary = swarm.wait_done(timeout=300)
     detail = {k: summary.get(k) for k in ("late_ticks", "held_ticks", "achieved_speed", "sense_to_command",
                                          "formation_error_final_m", "estimate_error_final_m",
                                          "min_object_distance_m")}
-    tick_ms = 1e3 * summary["dt"] / 4.0
-    met = (summary["min_object_distance_m"] >= 1.8 and summary["formation_error_final_m"] <= 0.25
-           and summary["estimate_error_final_m"] <= 0.25)
-    if not met and summary["sense_to_command"]["p50_ms"] > tick_ms:
-        pytest.skip(f"machine too busy for 400 ticks/s in real time (load average {os.getloadavg()[0]:.1f}): "
-                    f"{detail}")
+    print(f"speed 4 at load average {os.getloadavg()[0]:.1f}: {detail}")
     assert summary["min_object_distance_m"] >= 1.8, detail
     assert summary["formation_error_final_m"] <= 0.25, detail
     assert summary["estimate_error_final_m"] <= 0.25, detail
@@ -62,8 +56,8 @@ def test_paper_fast_in_real_time_at_speed_4_meets_the_paper_outcome(launch_swarm
 @pytest.mark.zenoh
 @pytest.mark.slow
 def test_paper_fast_in_real_time_meets_the_real_time_outcome_on_a_loaded_machine(launch_swarm):
-    """Asserted on every machine: at 100 ticks/s this 2-core machine keeps up even when loaded (the speed-4
-    test above needs 400 ticks/s, which it serves only when nothing else runs)."""
+    """Asserted on every machine: at 100 ticks/s (wall time) this 2-core machine keeps up even when loaded,
+    where at speed 4 it slows the world's clock."""
     swarm = launch_swarm(PAPER_FAST, clock="realtime", speed=SPEED_ALWAYS)
     summary = swarm.wait_done(timeout=300)
     detail = {k: summary.get(k) for k in ("late_ticks", "held_ticks", "achieved_speed", "sense_to_command",

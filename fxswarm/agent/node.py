@@ -73,6 +73,7 @@ class AgentNode:
         self.expects = None  # lock-step: expects(sender, tick) -> bool, set by a fault filter
         self.sensed_t: float | None = None  # time of the last real (not replayed) sensing, s
         self.since_sense_s = 0.0  # real time: seconds acted since the last sensing
+        self.compensate = scenario.delay_compensation == "leader-velocity"  # see _held_rows
         self.v_leader = np.zeros(3)  # running mean of dph: the leader's velocity as estimated
         self.v_extrapolate: np.ndarray | None = None  # while hearing nobody: the velocity used
         # (t, ph, v_leader) of recent steps: extrapolation starts from the last step whose inputs
@@ -200,26 +201,36 @@ class AgentNode:
         msg = Estimate("agent", self.id, self.seq_estimate, tick, t, self.id, self.ph.copy())
         return self._estimate_topic, msg
 
-    def held_estimates(self, fresh_by: float = -np.inf) -> tuple[np.ndarray, np.ndarray]:
+    def held_estimates(self, fresh_by: float = -np.inf, now: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The estimates this robot holds, shape (m, 3), neighbours in ascending id then the
         leader (``ph_0 := p0``), with their weights ``a_ij`` / ``b_i``, shape (m,).
-        Those sent before ``fresh_by`` (s) are stale and left out."""
-        rows, weights, _, _ = self._held_rows(fresh_by)
+        Those sent before ``fresh_by`` (s) are stale and left out; given the robot's time ``now``
+        (s), older ones are carried forward to it (:meth:`_held_rows`)."""
+        rows, weights, _, _ = self._held_rows(fresh_by, now)
         return np.array(rows, dtype=float).reshape(-1, 3), np.array(weights, dtype=float)
 
-    def _held_rows(self, fresh_by: float) -> tuple[list[list[float]], list[float], bool, bool]:
+    def _held_rows(self, fresh_by: float, now: float | None) -> tuple[list[list[float]], list[float], bool, bool]:
         """:meth:`held_estimates` as lists, and whether a neighbour / the (pinned) leader is
-        missing or stale: one pass over the holds (the agent's per-tick hot path)."""
+        missing or stale: one pass over the holds (the agent's per-tick hot path).
+
+        Delay compensation (``[controller] delay_compensation = "leader-velocity"``, the
+        default): a held value stamped ``t`` < ``now`` is carried forward by ``now - t`` at the
+        leader's velocity as this robot estimates it (:attr:`v_leader`). Every estimate tracks
+        the leader, so that is where it has moved since it was sent. Without it, each hop adds
+        its delay times the leader's speed to the lag, compounded over the graph (docs/DESIGN.md
+        "Delay compensation"). Lock-step without faults holds only current values: no change.
+        """
         rows: list[list[float]] = []
         weights: list[float] = []
         stale_neighbour = False
         held = self.estimates
+        v = self.v_leader.tolist() if self.compensate and now is not None else None
         for j, w in zip(self.neighbour_ids, self._weight_list):
             h = held.get(j)
             if h is None or h.t < fresh_by:
                 stale_neighbour = True
             else:
-                rows.append(h.ph.tolist())
+                rows.append(h.ph.tolist() if v is None or h.t >= now else _carried(h.ph, now - h.t, v))
                 weights.append(w)
         no_leader = False
         if self.pinned:
@@ -227,7 +238,8 @@ class AgentNode:
             if leader is None or leader.t < fresh_by:
                 no_leader = True
             else:
-                rows.append(leader.p0.tolist())
+                rows.append(leader.p0.tolist() if v is None or leader.t >= now
+                            else _carried(leader.p0, now - leader.t, v))
                 weights.append(self._weight_list[-1])
         return rows, weights, stale_neighbour, no_leader
 
@@ -237,7 +249,7 @@ class AgentNode:
         assert s is not None, "act() before any sensing"
         now = s.t if self.lockstep else (self.sensed_t if self.sensed_t is not None else s.t) + self.since_sense_s
         fresh_by = now - self.limits.staleness - 1e-9  # heard before this: stale (s)
-        rows, weights, stale_neighbour, no_leader = self._held_rows(fresh_by)
+        rows, weights, stale_neighbour, no_leader = self._held_rows(fresh_by, now)
         hears = len(weights) > 0
         if not hears and self.v_extrapolate is None:
             self._start_extrapolating(now)
@@ -325,3 +337,9 @@ class AgentNode:
                 if flags & bit:
                     self.degraded_ticks[name] += 1
         return flags
+
+
+def _carried(x: np.ndarray, age: float, v: list[float]) -> list[float]:
+    """``x`` carried forward by ``age`` s at velocity ``v``, as a list."""
+    x0, x1, x2 = x.tolist()
+    return [x0 + age * v[0], x1 + age * v[1], x2 + age * v[2]]

@@ -60,6 +60,7 @@ class Scenario:
     variant: str = "fixed-time"  # [controller] variant: the behaviours' law family (VARIANTS)
     estimator_variant: str = "fixed-time"  # [controller] estimator_variant: the estimator's law family
     discretisation: str = "euler"  # [controller] discretisation: "euler" (SPEC section 7) or "semi-implicit"
+    delay_compensation: str = "leader-velocity"  # [controller] delay_compensation (DELAY_COMPENSATIONS)
 
     @property
     def n(self) -> int:
@@ -260,6 +261,9 @@ def _behaviour(f: _Fields, lam_key: str, lam_default: float) -> BehaviourGains:
 #: so that convergence is fixed-time (the paper), finite-time, or asymptotic (exponential).
 VARIANTS = ("fixed-time", "asymptotic", "finite-time")
 DISCRETISATIONS = ("euler", "semi-implicit")
+#: [controller] delay_compensation: what a robot does with a neighbour's estimate (or the leader's
+#: state) older than its own time: carry it forward at its estimated leader velocity, or use it as is.
+DELAY_COMPENSATIONS = ("leader-velocity", "none")
 
 
 def _exponent_condition(x: float, relation: str) -> bool:
@@ -321,10 +325,11 @@ def parse(data: dict, source: str = "<scenario>") -> Scenario:
     formation = _behaviour(gf, "lam_f", 1.0)
     avoidance = _behaviour(gf, "lam_o", 1.0)
     cf = top.table_at("controller")
-    cf.check_known({"variant", "estimator_variant", "discretisation"})
+    cf.check_known({"variant", "estimator_variant", "discretisation", "delay_compensation"})
     variant = cf.string("variant", "fixed-time", VARIANTS)
     estimator_variant = cf.string("estimator_variant", variant, VARIANTS)
     discretisation = cf.string("discretisation", "euler", DISCRETISATIONS)
+    delay_compensation = cf.string("delay_compensation", "leader-velocity", DELAY_COMPENSATIONS)
     _check_behaviour_variant(gf, formation, variant)
     ef = top.table_at("estimator")
     ef.check_known({"power"})
@@ -412,6 +417,7 @@ def parse(data: dict, source: str = "<scenario>") -> Scenario:
         robots=tuple(robots), a=a, b=b, leader=leader, obstacles=obstacles,
         formation=formation, avoidance=avoidance, estimator=estimator, raw=data,
         variant=variant, estimator_variant=estimator_variant, discretisation=discretisation,
+        delay_compensation=delay_compensation,
     )
     leader_speed = leader.max_speed_inf(duration)
     if estimator.K3 < leader_speed:
