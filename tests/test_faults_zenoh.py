@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 import tomllib
 from pathlib import Path
 
@@ -149,18 +150,47 @@ def test_garbage_on_every_key_kills_nothing_is_counted_and_leaves_the_lockstep_r
         {t: len(b) for t, b in blasts.items()}
     attacker = ZenohBus(swarm.swarm.swarm, ZenohOptions("client", (swarm.swarm.endpoint,), (), False))
     rounds = 0
+    heard: list[float] = []  # the harness's simulation time after each round
     try:
+        # A put is sent only to subscribers the session knows of: wait until each key has one, so no
+        # early garbage is lost to discovery (nobody subscribes to puts on a liveliness key).
+        waiting = {t for t in blasts if not t.startswith("alive")}
+        matched = threading.Event()
+        lock = threading.Lock()
+
+        def on_match(topic: str, status) -> None:
+            with lock:
+                if status.matching:
+                    waiting.discard(topic)
+                if not waiting:
+                    matched.set()
+
+        publishers = {}
+        for topic in blasts:
+            pub = attacker.session.declare_publisher(f"{attacker.root}/{topic}")
+            if topic in waiting:
+                listener = pub.declare_matching_listener(lambda st, topic=topic: on_match(topic, st))
+                publishers[topic + "#listener"] = listener
+                on_match(topic, pub.matching_status)
+            publishers[topic] = pub
+        assert matched.wait(30), f"no subscriber on {sorted(waiting)}"
         world = swarm.swarm.children["world"]
+        # One payload per key in turn, so every process is hit within the first pass over the keys,
+        # however soon the run ends.
+        order = [(t, p) for i in range(max(map(len, blasts.values())))
+                 for t, ps in blasts.items() if i < len(ps) for p in (ps[i],)]
         while world.running() and rounds < 30:
-            for topic, payloads in blasts.items():
-                for payload in payloads:
-                    attacker.publish_bytes(topic, payload)
+            for topic, payload in order:
+                publishers[topic].put(payload)
             rounds += 1
             swarm.pump(0.05)
+            heard.append(swarm.sim_time())
         summary = swarm.wait_done(timeout=180)
     finally:
         attacker.close()
     assert rounds >= 1
+    # Garbage on world/state neither moves nor erases the harness's view of the run.
+    assert heard == sorted(heard), heard
     assert not swarm.deaths and summary["complete"] and summary["missed_ticks"] == 0
     procs = summary["processes"]
     assert set(procs) == {"world-0", "leader-0"} | {f"agent-{r.id}" for r in sc.robots}

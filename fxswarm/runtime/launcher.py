@@ -43,7 +43,7 @@ from fxswarm.faults.process import ProcessSchedule
 from fxswarm.runtime.output import write_summary
 from fxswarm.runtime.process import CLOCKS, PARENT_ENV
 from fxswarm.runtime.sim_cli import load_or_exit
-from fxswarm.runtime.zenoh_bus import TOPOLOGIES, ZenohBus, ZenohOptions, zenoh_table
+from fxswarm.runtime.zenoh_bus import TOPOLOGIES, ZenohBus, ZenohOptions, check_sender, zenoh_table
 
 # "auto" meshes swarms up to this many robots. Measured (docs/DESIGN.md "Topology"): with 6 robots
 # a mesh takes the router's hop out of every message (4-24 % more lock-step ticks/s, real-time
@@ -278,17 +278,20 @@ class Swarm:
         (self.alive.add if up else self.alive.discard)(name)
 
     def _on_state(self, topic: str, payload: bytes) -> None:
-        self._state_bytes, self._state = payload, None
+        self._state_bytes = payload  # decoded only when read: most states are never looked at
 
     @property
     def state(self) -> WorldState | None:
-        """The latest world state heard (None before the first, or if it was not valid)."""
-        if self._state is None and self._state_bytes is not None:
+        """The latest valid world state heard (None before the first). An invalid one (a
+        stranger's, or garbage) is counted and leaves the last valid one in place."""
+        payload, self._state_bytes = self._state_bytes, None
+        if payload is not None:
             try:
-                msg = decode(self._state_bytes)
-                self._state = msg if isinstance(msg, WorldState) else None
+                msg = decode(payload)
+                check_sender(topics.WORLD_STATE, msg)
+                self._state = msg
             except WireError:
-                self._state_bytes = None
+                self.bus.counters.invalid += 1
         return self._state
 
     def _wait_alive(self, children: list[Child], deadline: float) -> None:
