@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +12,7 @@ import pytest
 from fxswarm.core.metrics import formation_errors
 from fxswarm.logger import style
 from fxswarm.runtime.output import load_trajectory
+from fxswarm.testing import scenario_with
 
 from test_logger_recording import EXPECTED, entities, read_series
 
@@ -67,3 +70,24 @@ def test_the_logger_process_shows_a_drop_made_at_a_receivers_inbox(launch_swarm)
     e = names.index("2-3")
     assert drops.shape[1] == len(names)
     assert drops[-1, e] == dropped and np.delete(drops[-1], e).sum() == 0
+
+
+@pytest.mark.zenoh
+def test_fxswarm_run_names_what_it_wrote_and_how_to_view_the_recording(tmp_path):
+    """What `make run` prints at the end: the summary, the trajectory and this run's recording."""
+    config = scenario_with(PAPER_FAST, tmp_path, duration=1.0)
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "recording.rrd").write_bytes(b"an earlier run's")
+
+    def run(*extra: str) -> str:
+        done = subprocess.run([sys.executable, "-m", "fxswarm.cli", "run", str(config), "--out", str(out), *extra],
+                              capture_output=True, text=True, timeout=240)
+        assert done.returncode == 0, done.stderr[-3000:]
+        return done.stdout
+
+    said = run("--no-logger")  # the stale recording is not announced as this run's
+    assert f"wrote {out}/summary.json and {out}/trajectory.npz" in said and "recording.rrd" not in said, said
+    said = run()
+    assert f"wrote {out}/recording.rrd (view it: rerun {out}/recording.rrd" in said, said
+    assert (out / "recording.rrd").stat().st_size > 1000

@@ -527,6 +527,7 @@ def _raise_interrupt(signum, frame) -> None:
 def main(args: argparse.Namespace) -> int:
     sc = load_or_exit(args.config)
     out = Path(args.out or f"runs/{sc.name}")
+    started = time.time()
     swarm = Swarm(args.config, out, clock=args.clock, speed=args.speed, swarm=args.swarm, port=args.port,
                   logger=not args.no_logger, tick_timeout=args.tick_timeout, lease_ms=args.lease_ms, scenario=sc,
                   topology=args.topology, faults=tuple(args.fault or ()),
@@ -598,4 +599,7 @@ def main(args: argparse.Namespace) -> int:
                 "estimate_error_final_m", "formation_settle_s", "missed_ticks")
         print(json.dumps({k: summary.get(k) for k in keys}, indent=2))
         print(f"wrote {out}/summary.json and {out}/trajectory.npz")
+        recording = out / "recording.rrd"
+        if recording.exists() and recording.stat().st_mtime >= started:  # this run's, not a stale one
+            print(f"wrote {out}/recording.rrd (view it: rerun {out}/recording.rrd; figures: fxswarm report {out})")
     return code
