@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -12,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from fxswarm.runtime.launcher import free_port
 from fxswarm.testing import scenario_with
 
 PAPER_FAST = Path(__file__).resolve().parents[1] / "configs" / "paper-fast.toml"
@@ -164,3 +166,58 @@ def test_an_exit_at_run_over_is_planned_even_while_the_world_is_still_there(tmp_
     finally:
         world.popen.stdin.close()
         world.popen.wait()
+
+
+# --- a process that cannot join the network ------------------------------------------------
+
+
+def role_command(*args: str) -> list[str]:
+    return [sys.executable, "-m", "fxswarm.cli", *args]
+
+
+@pytest.mark.zenoh
+def test_a_client_waiting_for_its_router_says_so_and_hears_ctrl_c(tmp_path):
+    port = free_port()  # nothing listens there
+    proc = subprocess.Popen(role_command("leader", str(PAPER_FAST), "--swarm", "nobody", "--mode", "client",
+                                         "--connect", f"tcp/127.0.0.1:{port}", "--out", str(tmp_path)),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        wait_for_line(proc, f"waiting for the router at tcp/127.0.0.1:{port}", timeout=20)
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        code = proc.wait(timeout=5)
+        assert time.monotonic() - t0 < 3.0
+        assert code == 130
+        assert "Traceback" not in proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+@pytest.mark.zenoh
+def test_a_client_gives_up_on_its_router_after_connect_timeout_with_a_clear_error(tmp_path):
+    port = free_port()
+    done = subprocess.run(role_command("agent", str(PAPER_FAST), "--id", "2", "--swarm", "nobody", "--mode", "client",
+                                       "--connect", f"tcp/127.0.0.1:{port}", "--connect-timeout", "1.5",
+                                       "--out", str(tmp_path)),
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 1
+    assert f"fxswarm agent 2: no router answered at tcp/127.0.0.1:{port} within 1.5 s" in done.stderr, done.stderr
+    assert "Traceback" not in done.stderr
+
+
+@pytest.mark.zenoh
+@pytest.mark.parametrize("role", ["router", "agent"])
+def test_a_port_already_taken_is_a_clear_error_not_a_traceback(tmp_path, role):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        endpoint = f"tcp/127.0.0.1:{taken.getsockname()[1]}"
+        args = (["router", "--listen", endpoint] if role == "router" else
+                ["agent", str(PAPER_FAST), "--id", "2", "--mode", "peer", "--no-multicast", "--listen", endpoint])
+        done = subprocess.run(role_command(*args, "--swarm", "nobody"), capture_output=True, text=True, timeout=60)
+    assert done.returncode == 1
+    said = "fxswarm router: cannot listen on" if role == "router" else "fxswarm agent 2: could not open a Zenoh session"
+    assert said in done.stderr and "Address already in use" in done.stderr, done.stderr
+    assert "Traceback" not in done.stderr

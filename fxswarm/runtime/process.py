@@ -31,7 +31,7 @@ from fxswarm.core.messages import Message
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.apply import process_counters, wrap_for_process
 from fxswarm.faults.plan import CLI_HELP as FAULT_HELP
-from fxswarm.runtime.zenoh_bus import ZenohBus, add_zenoh_arguments, options_from_args, wait_until
+from fxswarm.runtime.zenoh_bus import ConnectError, ZenohBus, add_zenoh_arguments, options_from_args, wait_until
 
 #: Set by the launcher: a child whose parent is gone (even SIGKILLed) stops by itself.
 PARENT_ENV = "FXSWARM_PARENT_PID"
@@ -137,13 +137,22 @@ class RoleProcess:
         except ValueError as exc:
             print(f"fxswarm {role}: {exc}", file=sys.stderr)
             raise SystemExit(2) from None
-        self.bus = ZenohBus(swarm, options, drop_when_congested=not self.lockstep, batch=self.lockstep)
+        # Installed first: a client waiting for its router must hear Ctrl-C too (and a
+        # SIGINT ignored where the process was started, e.g. a background job, is heard).
         for sig in (signal.SIGTERM, signal.SIGINT):
             signal.signal(sig, self._on_signal)
+        label = f"fxswarm {role}" + (f" {ident}" if role == "agent" else "")
+        try:
+            self.bus = ZenohBus(swarm, options, drop_when_congested=not self.lockstep, batch=self.lockstep, who=label)
+        except ConnectError as exc:
+            print(exc, file=sys.stderr)
+            raise SystemExit(1) from None
 
     # --- signals and liveness ------------------------------------------------------------
 
     def _on_signal(self, signum, frame) -> None:
+        if getattr(self, "bus", None) is None:  # still opening its session: nothing to close yet
+            raise KeyboardInterrupt
         self.stop(signal.Signals(signum).name)
 
     def stop(self, reason: str) -> None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import os
 import signal
+import sys
 import threading
 
 import zenoh
@@ -42,7 +43,12 @@ def main(args: argparse.Namespace) -> int:
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
     parent = os.environ.get(PARENT_ENV)
-    session = zenoh.open(router_config(args.listen or [DEFAULT_LISTEN], args.multicast))
+    listen = args.listen or [DEFAULT_LISTEN]
+    try:
+        session = zenoh.open(router_config(listen, args.multicast))
+    except zenoh.ZError as exc:  # e.g. the port is taken
+        print(f"fxswarm router: cannot listen on {', '.join(listen)}: {exc}", file=sys.stderr)
+        return 1
     try:
         token = session.liveliness().declare_token(f"{prefix(args.swarm)}/{alive_topic('router', 0)}")
         while not stop.wait(0.2):

@@ -24,7 +24,7 @@ import queue
 import sys
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import zenoh
@@ -90,6 +90,40 @@ def _json_list(items) -> str:
     return "[" + ",".join(f'"{x}"' for x in items) + "]"
 
 
+class ConnectError(RuntimeError):
+    """No Zenoh session: the router stayed unreachable, or the configuration was refused."""
+
+
+def open_session(options: ZenohOptions, who: str = "fxswarm") -> zenoh.Session:
+    """``zenoh.open``, for a client in attempts of at most 1 s until ``connect_timeout_ms``.
+
+    A client blocks in ``zenoh.open`` until its router answers, deaf to Ctrl-C (a signal is
+    handled only between Python steps) and silent. In 1 s steps a signal ends the wait within
+    a second, and a wait is announced once. Raises :class:`ConnectError`, never a traceback.
+    """
+    if options.mode != "client" or not options.connect:
+        try:
+            return zenoh.open(options.config())
+        except zenoh.ZError as exc:
+            raise ConnectError(f"{who}: could not open a Zenoh session ({options.mode}): {exc}") from None
+    total_s = options.connect_timeout_ms / 1000
+    deadline = None if total_s < 0 else time.monotonic() + total_s
+    attempt = replace(options, connect_timeout_ms=1000 if deadline is None else min(1000, options.connect_timeout_ms))
+    where = ", ".join(options.connect)
+    announced = False
+    while True:
+        try:
+            return zenoh.open(attempt.config())
+        except zenoh.ZError as exc:
+            if deadline is not None and time.monotonic() >= deadline:
+                raise ConnectError(f"{who}: no router answered at {where} within {total_s:g} s "
+                                   f"(is it running, and is the address right?): {exc}") from None
+        if not announced:
+            announced = True
+            limit = "until it answers" if deadline is None else f"up to {total_s:g} s"
+            print(f"{who}: waiting for the router at {where} ({limit})", file=sys.stderr, flush=True)
+
+
 def add_zenoh_arguments(p: argparse.ArgumentParser, default_swarm: str = "default") -> None:
     """The options every process shares: swarm name and how to join Zenoh."""
     g = p.add_argument_group("zenoh")
@@ -107,6 +141,8 @@ def add_zenoh_arguments(p: argparse.ArgumentParser, default_swarm: str = "defaul
                    help="disable UDP multicast scouting")
     g.add_argument("--lease-ms", type=int, default=None,
                    help="session lease: how fast a frozen process is seen as gone")
+    g.add_argument("--connect-timeout", type=float, default=30.0, metavar="S",
+                   help="a client: how long to wait for its router before giving up (default 30; 0: forever)")
 
 
 _ZENOH_FIELDS = {"swarm": str, "mode": str, "connect": list, "listen": list, "multicast": bool, "lease_ms": int,
@@ -145,7 +181,10 @@ def options_from_args(args: argparse.Namespace, table: dict | None = None,
     listen = tuple(args.listen or table.get("listen") or ())
     multicast = args.multicast if args.multicast is not None else table.get("multicast", mode == "peer")
     lease = args.lease_ms if args.lease_ms is not None else table.get("lease_ms")
-    return swarm, ZenohOptions(mode, connect, listen, bool(multicast), lease)
+    if args.connect_timeout < 0:
+        raise ValueError(f"--connect-timeout: expected seconds >= 0 (0: forever), got {args.connect_timeout:g}")
+    wait_ms = int(args.connect_timeout * 1000) if args.connect_timeout > 0 else -1
+    return swarm, ZenohOptions(mode, connect, listen, bool(multicast), lease, wait_ms)
 
 
 # --- who may say what ----------------------------------------------------------------------
@@ -187,7 +226,7 @@ class ZenohBus:
     """One Zenoh session of one process, with the :class:`~fxswarm.core.bus.Bus` interface."""
 
     def __init__(self, swarm: str, options: ZenohOptions, validate: bool = True, drop_when_congested: bool = False,
-                 batch: bool = False) -> None:
+                 batch: bool = False, who: str = "fxswarm") -> None:
         """``drop_when_congested``: publish with Zenoh's DROP congestion control instead of BLOCK.
 
         Lock-step needs every message (BLOCK); in real time a message is worth less than
@@ -198,6 +237,8 @@ class ZenohBus:
         (the lock-step world's 8 per tick) may share a write: lock-step paper-fast spent
         ~15 % less CPU per tick; in real time it added 0.5-2 ms to the median
         sense-to-command latency, so real time keeps ``express`` (docs/DESIGN.md).
+
+        ``who`` names the process in what :func:`open_session` says or raises.
         """
         self.swarm = swarm
         self._congestion = zenoh.CongestionControl.DROP if drop_when_congested else zenoh.CongestionControl.BLOCK
@@ -217,7 +258,7 @@ class ZenohBus:
         self._subscribers: list = []
         self._tokens: list = []
         self._warned: set[str] = set()
-        self.session = zenoh.open(options.config())
+        self.session = open_session(options, who)
 
     # --- Bus protocol ---------------------------------------------------------------------
 
