@@ -55,6 +55,9 @@ def main(argv: list[str] | None = None) -> int:
         return int(module.main(args) or 0)
     except KeyboardInterrupt:
         return 130
+    except OSError as exc:  # a file or folder the command could not read or write: one line, no traceback
+        print(f"fxswarm {args.command}: {exc}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -168,7 +168,7 @@ def test_an_exit_at_run_over_is_planned_even_while_the_world_is_still_there(tmp_
         world.popen.wait()
 
 
-# --- a process that cannot join the network ------------------------------------------------
+# --- bad input, a network that is not there, a folder that cannot be written -----------------
 
 
 def role_command(*args: str) -> list[str]:
@@ -221,3 +221,52 @@ def test_a_port_already_taken_is_a_clear_error_not_a_traceback(tmp_path, role):
     said = "fxswarm router: cannot listen on" if role == "router" else "fxswarm agent 2: could not open a Zenoh session"
     assert said in done.stderr and "Address already in use" in done.stderr, done.stderr
     assert "Traceback" not in done.stderr
+
+
+@pytest.mark.parametrize("command", [
+    ["sim", str(PAPER_FAST), "--out", "{blocked}"],
+    ["run", str(PAPER_FAST), "--out", "{blocked}"],
+    ["world", str(PAPER_FAST), "--swarm", "nobody", "--out", "{blocked}"],
+    ["agent", str(PAPER_FAST), "--id", "2", "--swarm", "nobody", "--out", "{blocked}"],
+    ["logger", str(PAPER_FAST), "--swarm", "nobody", "--out", "{blocked}"],
+    ["sweep", str(PAPER_FAST), "--out", "{blocked}"],
+], ids=lambda c: c[0])
+def test_a_run_folder_that_cannot_be_written_is_refused_before_any_work(tmp_path, command):
+    (tmp_path / "a-file").write_text("")
+    blocked = str(tmp_path / "a-file" / "run")  # a folder under a file: not a directory
+    t0 = time.monotonic()
+    done = subprocess.run(role_command(*(a.format(blocked=blocked) for a in command)),
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stderr
+    assert f"cannot write the run folder {blocked}: Not a directory" in done.stderr, done.stderr
+    assert "Traceback" not in done.stderr
+    assert time.monotonic() - t0 < 30  # refused up front, not after the run
+
+
+@pytest.mark.parametrize("role", ["run", "world", "agent"])
+def test_a_wrong_fault_spec_is_refused_by_the_launcher_and_by_each_role(tmp_path, role):
+    extra = ["--id", "2"] if role == "agent" else []
+    done = subprocess.run(role_command(role, str(PAPER_FAST), *extra, "--swarm", "nobody", "--out", str(tmp_path),
+                                       "--fault", "agent:1->agent:2 drop=2"),
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stderr
+    said = "(with --fault): faults.links[0].drop: expected a probability in [0, 1], got 2.0"
+    assert said in done.stderr and "Traceback" not in done.stderr, done.stderr
+
+
+@pytest.mark.zenoh
+def test_a_process_that_cannot_write_its_counters_still_closes_its_session_and_exits(tmp_path):
+    """An open Zenoh session keeps a process from exiting: whatever fails on the way out, it is closed."""
+    (tmp_path / "processes").write_text("")  # where the counters go: a file, not a folder
+    proc = subprocess.Popen(role_command("world", str(PAPER_FAST), "--swarm", f"nobody-{os.getpid()}",
+                                         "--out", str(tmp_path), "--wait-timeout", "1", "--no-multicast"),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        code = proc.wait(timeout=60)
+        said = proc.stderr.read()
+        assert code == 3, said  # gave up waiting for the swarm
+        assert "could not write its counters" in said and "Traceback" not in said, said
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()

@@ -89,6 +89,8 @@ def main(args: argparse.Namespace) -> int:
             run_periodic_loop(proc, sc.dt / args.speed, act,
                               act_early=lambda: agent.sense is not None and agent.sense.tick > agent.acted_tick)
     finally:
-        proc.write_counters()
-        proc.close()
+        try:
+            proc.write_counters()
+        finally:
+            proc.close()  # always: an open session hangs the exit
     return proc.exit_status

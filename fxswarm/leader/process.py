@@ -64,6 +64,8 @@ def main(args: argparse.Namespace) -> int:
 
             run_periodic_loop(proc, sc.dt / args.speed, act)
     finally:
-        proc.write_counters()
-        proc.close()
+        try:
+            proc.write_counters()
+        finally:
+            proc.close()  # always: an open session hangs the exit
     return proc.exit_status

@@ -40,9 +40,9 @@ from fxswarm.core.scenario import Scenario
 from fxswarm.faults.apply import merge_process_links
 from fxswarm.faults.plan import CLI_HELP as FAULT_HELP
 from fxswarm.faults.process import ProcessSchedule
-from fxswarm.runtime.output import write_summary
+from fxswarm.runtime.output import prepare_run_folder, write_summary
 from fxswarm.runtime.process import CLOCKS, PARENT_ENV
-from fxswarm.runtime.sim_cli import load_or_exit
+from fxswarm.runtime.sim_cli import load_or_exit, with_faults_or_exit
 from fxswarm.runtime.zenoh_bus import TOPOLOGIES, ZenohBus, ZenohOptions, check_sender, zenoh_table
 
 # "auto" meshes swarms up to this many robots. Measured (docs/DESIGN.md "Topology"): with 6 robots
@@ -526,7 +526,8 @@ def _raise_interrupt(signum, frame) -> None:
 
 def main(args: argparse.Namespace) -> int:
     sc = load_or_exit(args.config)
-    out = Path(args.out or f"runs/{sc.name}")
+    with_faults_or_exit(sc, args.fault)  # a wrong --fault is refused here, not by every child
+    out = prepare_run_folder(args.out or f"runs/{sc.name}", "fxswarm run")
     started = time.time()
     swarm = Swarm(args.config, out, clock=args.clock, speed=args.speed, swarm=args.swarm, port=args.port,
                   logger=not args.no_logger, tick_timeout=args.tick_timeout, lease_ms=args.lease_ms, scenario=sc,

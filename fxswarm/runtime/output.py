@@ -3,9 +3,27 @@
 from __future__ import annotations
 
 import json
+import os
+import sys
 from pathlib import Path
 
 import numpy as np
+
+
+def prepare_run_folder(out_dir: str | Path, who: str) -> Path:
+    """Make ``out_dir`` (and its parents) and check it takes a file, before any work: a folder
+    that cannot be written ends the command at once, in one line with exit status 2, instead of
+    a traceback after the run (whose results would be lost)."""
+    out = Path(out_dir)
+    probe = out / f".fxswarm-probe-{os.getpid()}"
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        print(f"{who}: cannot write the run folder {out}: {exc.strerror or exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+    return out
 
 
 def write_run(out_dir: str | Path, summary: dict, trajectory: dict[str, np.ndarray]) -> Path:

@@ -31,6 +31,8 @@ from fxswarm.core.messages import Message
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.apply import process_counters, wrap_for_process
 from fxswarm.faults.plan import CLI_HELP as FAULT_HELP
+from fxswarm.runtime.output import prepare_run_folder
+from fxswarm.runtime.sim_cli import with_faults_or_exit
 from fxswarm.runtime.zenoh_bus import ConnectError, ZenohBus, add_zenoh_arguments, options_from_args, wait_until
 
 #: Set by the launcher: a child whose parent is gone (even SIGKILLed) stops by itself.
@@ -137,13 +139,17 @@ class RoleProcess:
         except ValueError as exc:
             print(f"fxswarm {role}: {exc}", file=sys.stderr)
             raise SystemExit(2) from None
+        who = f"fxswarm {role}" + (f" {ident}" if role == "agent" else "")
+        # Refused before the session opens (bad input: one line, exit 2, nothing to close).
+        with_faults_or_exit(scenario, getattr(args, "fault", None))
+        if args.out:
+            prepare_run_folder(args.out, who)
         # Installed first: a client waiting for its router must hear Ctrl-C too (and a
         # SIGINT ignored where the process was started, e.g. a background job, is heard).
         for sig in (signal.SIGTERM, signal.SIGINT):
             signal.signal(sig, self._on_signal)
-        label = f"fxswarm {role}" + (f" {ident}" if role == "agent" else "")
         try:
-            self.bus = ZenohBus(swarm, options, drop_when_congested=not self.lockstep, batch=self.lockstep, who=label)
+            self.bus = ZenohBus(swarm, options, drop_when_congested=not self.lockstep, batch=self.lockstep, who=who)
         except ConnectError as exc:
             print(exc, file=sys.stderr)
             raise SystemExit(1) from None
@@ -276,14 +282,19 @@ class RoleProcess:
         return c
 
     def write_counters(self, extra: dict | None = None) -> None:
+        """Write OUT/processes/<role>-<id>.json; a failure is said, never raised (it runs on the
+        way out, and must not keep the session from being closed)."""
         if not self.args.out:
             return
         folder = Path(self.args.out) / "processes"
-        folder.mkdir(parents=True, exist_ok=True)
         data = {"role": self.role, "id": self.ident, "pid": os.getpid(), **self.counters(), **(extra or {})}
         tmp = folder / f".{self.role}-{self.ident}.json.tmp"
-        tmp.write_text(json.dumps(data, indent=2) + "\n")
-        tmp.replace(folder / f"{self.role}-{self.ident}.json")
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            tmp.write_text(json.dumps(data, indent=2) + "\n")
+            tmp.replace(folder / f"{self.role}-{self.ident}.json")
+        except OSError as exc:
+            print(f"fxswarm {self.role}: could not write its counters to {folder}: {exc}", file=sys.stderr)
 
     def close(self) -> None:
         self.bus.close()

@@ -10,7 +10,7 @@ import warnings
 from fxswarm.core.scenario import ScenarioError, ScenarioWarning, load
 from fxswarm.faults.plan import CLI_HELP as FAULT_HELP
 from fxswarm.faults.plan import with_cli_faults
-from fxswarm.runtime.output import write_run
+from fxswarm.runtime.output import prepare_run_folder, write_run
 from fxswarm.runtime.sim import Simulation, progress_line
 
 
@@ -36,14 +36,18 @@ def load_or_exit(path: str):
     return sc
 
 
-def main(args: argparse.Namespace) -> int:
-    sc = load_or_exit(args.config)
+def with_faults_or_exit(sc, specs: list[str] | None):
+    """``sc`` with the command line's ``--fault`` specs; on error print it and exit 2."""
     try:
-        sc = with_cli_faults(sc, args.fault)
+        return with_cli_faults(sc, specs)
     except ScenarioError as exc:
         print(f"fxswarm: {exc}", file=sys.stderr)
-        return 2
-    out = args.out or f"runs/{sc.name}-sim"
+        raise SystemExit(2) from None
+
+
+def main(args: argparse.Namespace) -> int:
+    sc = with_faults_or_exit(load_or_exit(args.config), args.fault)
+    out = prepare_run_folder(args.out or f"runs/{sc.name}-sim", "fxswarm sim")
     sim = Simulation(sc)
     summary = sim.run(progress=None if args.quiet else progress_line)
     if not args.quiet:

@@ -50,6 +50,7 @@ from fxswarm.core.bounds import (
 )
 from fxswarm.core.control import BehaviourGains
 from fxswarm.core.scenario import DISCRETISATIONS, VARIANTS, Scenario, ScenarioWarning
+from fxswarm.runtime.output import prepare_run_folder
 from fxswarm.study.measure import initial_errors, settle_times
 from fxswarm.study.parallel import parallel_map
 from fxswarm.study.variants import case_toml, parse_case
@@ -293,7 +294,7 @@ def main(args: argparse.Namespace) -> int:
         print(f"fxswarm sweep: {args.config}: the variants derive from fixed-time gains; this scenario "
               f"declares controller.variant = {base.variant!r}", file=sys.stderr)
         return 2
-    out = Path(args.out or f"runs/{base.name}-sweep")
+    out = prepare_run_folder(args.out or f"runs/{base.name}-sweep", "fxswarm sweep")  # before minutes of work
     cases = plan(base, scales, variants, args.dt, args.duration, args.max_duration, args.avoidance,
                  args.discretisation)
 

@@ -255,8 +255,8 @@ def main(args: argparse.Namespace) -> int:
         crashed = True
         raise
     finally:
-        proc.write_counters(extra)
         try:
+            proc.write_counters(extra)
             if not crashed:  # the others wait for a world that is gone without having said so
                 proc.end_run()
         finally:
