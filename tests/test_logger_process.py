@@ -91,3 +91,26 @@ def test_fxswarm_run_names_what_it_wrote_and_how_to_view_the_recording(tmp_path)
     said = run()
     assert f"wrote {out}/recording.rrd (view it: rerun {out}/recording.rrd" in said, said
     assert (out / "recording.rrd").stat().st_size > 1000
+
+
+@pytest.mark.zenoh
+def test_fxswarm_run_passes_its_rerun_outputs_to_the_logger(tmp_path):
+    config = scenario_with(PAPER_FAST, tmp_path, duration=1.0)
+    live = tmp_path / "elsewhere" / "live.rrd"
+    live.parent.mkdir()
+    done = subprocess.run([sys.executable, "-m", "fxswarm.cli", "run", str(config), "--out", str(tmp_path / "run"),
+                           "--rerun", f"file={live}"], capture_output=True, text=True, timeout=240)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert f"wrote {live} (view it: rerun {live};" in done.stdout, done.stdout
+    assert live.stat().st_size > 1000 and not (tmp_path / "run" / "recording.rrd").exists()
+
+
+@pytest.mark.parametrize("extra, said", [
+    (["--rerun", "file,bogus"], "--rerun 'bogus': expected a comma-separated list of"),
+    (["--rerun", "spawn", "--no-logger"], "--rerun sets the logger's outputs; it cannot go with --no-logger"),
+])
+def test_fxswarm_run_refuses_wrong_rerun_outputs_before_starting_anything(tmp_path, extra, said):
+    done = subprocess.run([sys.executable, "-m", "fxswarm.cli", "run", str(PAPER_FAST), "--out", str(tmp_path),
+                           *extra], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and said in done.stderr, done.stderr
+    assert not (tmp_path / "logs").exists()  # no process was started

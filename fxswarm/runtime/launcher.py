@@ -173,6 +173,7 @@ class Swarm:
     topology: str | None = None  # mesh | routed | auto (mesh up to MESH_MAX_ROBOTS robots); None: the
     # scenario's [zenoh] topology, else auto
     world_args: tuple[str, ...] = ()
+    logger_args: tuple[str, ...] = ()  # e.g. ("--rerun", "file,spawn")
     faults: tuple[str, ...] = ()  # --fault specs, passed on to every role process
     python: str = sys.executable
     scenario: Scenario | None = None
@@ -220,7 +221,8 @@ class Swarm:
         out = [Child("router", "router", 0, [self.python, "-m", "fxswarm.cli", "router", "--listen", self.endpoint,
                                              "--swarm", self.swarm], logs / "router.log")]
         if self.logger and logger_available():
-            out.append(Child("logger", "logger", 0, self._role_argv("logger", []), logs / "logger.log"))
+            out.append(Child("logger", "logger", 0, self._role_argv("logger", list(self.logger_args)),
+                             logs / "logger.log"))
         out.append(Child("leader", "leader", 0, self._role_argv("leader", []), logs / "leader.log"))
         for r in self.scenario.robots:
             out.append(Child(f"agent-{r.id}", "agent", r.id, self._role_argv("agent", ["--id", str(r.id)]),
@@ -497,6 +499,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="real time: the world holds its clock while a robot is more than TICKS ticks behind "
                         "(default 10; 0: never)")
     p.add_argument("--no-logger", action="store_true", help="do not start the Rerun logger process")
+    p.add_argument("--rerun", default=None, metavar="OUTPUTS",
+                   help="the logger's outputs, as in `fxswarm logger --rerun`: file[=PATH], grpc[=URL] (a "
+                        "running viewer), spawn (a local viewer), web[=PORT] (default: file, OUT/recording.rrd); "
+                        "e.g. file,spawn to watch the run live and keep the recording")
     p.add_argument("--fail-fast", action="store_true", help="end the run when any agent dies")
     p.add_argument("--start-timeout", type=float, default=60.0, help="seconds to wait for every process to be up")
     p.add_argument("--quiet", action="store_true", help="no progress line")
@@ -528,11 +534,24 @@ def main(args: argparse.Namespace) -> int:
     sc = load_or_exit(args.config)
     with_faults_or_exit(sc, args.fault)  # a wrong --fault is refused here, not by every child
     out = prepare_run_folder(args.out or f"runs/{sc.name}", "fxswarm run")
+    recording: Path | None = out / "recording.rrd"  # where the logger writes its file, if it does
+    if args.rerun is not None:
+        if args.no_logger:
+            print("fxswarm run: --rerun sets the logger's outputs; it cannot go with --no-logger", file=sys.stderr)
+            return 2
+        from fxswarm.logger.sinks import OutputError, parse_outputs  # loads Rerun: only when asked
+
+        try:
+            recording = parse_outputs(args.rerun, out).file
+        except OutputError as exc:
+            print(f"fxswarm run: {exc}", file=sys.stderr)
+            return 2
     started = time.time()
     swarm = Swarm(args.config, out, clock=args.clock, speed=args.speed, swarm=args.swarm, port=args.port,
                   logger=not args.no_logger, tick_timeout=args.tick_timeout, lease_ms=args.lease_ms, scenario=sc,
                   topology=args.topology, faults=tuple(args.fault or ()),
-                  world_args=("--max-lag", str(args.max_lag)) if args.max_lag is not None else ())
+                  world_args=("--max-lag", str(args.max_lag)) if args.max_lag is not None else (),
+                  logger_args=("--rerun", args.rerun) if args.rerun is not None else ())
     # SIGINT and SIGTERM both stop the run cleanly, even where SIGINT came in ignored (a background job).
     signal.signal(signal.SIGTERM, _raise_interrupt)
     signal.signal(signal.SIGINT, _raise_interrupt)
@@ -600,7 +619,6 @@ def main(args: argparse.Namespace) -> int:
                 "estimate_error_final_m", "formation_settle_s", "missed_ticks")
         print(json.dumps({k: summary.get(k) for k in keys}, indent=2))
         print(f"wrote {out}/summary.json and {out}/trajectory.npz")
-        recording = out / "recording.rrd"
-        if recording.exists() and recording.stat().st_mtime >= started:  # this run's, not a stale one
-            print(f"wrote {out}/recording.rrd (view it: rerun {out}/recording.rrd; figures: fxswarm report {out})")
+        if recording is not None and recording.exists() and recording.stat().st_mtime >= started:  # not a stale one
+            print(f"wrote {recording} (view it: rerun {recording}; figures: fxswarm report {out})")
     return code
