@@ -21,6 +21,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from bench_io import write_json  # a sibling script
+
 ROOT = Path(__file__).resolve().parents[1]
 
 # Run inside one tree (cwd = that tree, its venv): one measurement, printed as one JSON line.
@@ -76,9 +78,7 @@ def main() -> int:
                 rounds[name].append(measure(tree, kind, arg))
                 print(kind, i, name, json.dumps(rounds[name][-1]), file=sys.stderr)
         result[kind] = {"rounds": rounds, "median": {name: medians(rows) for name, rows in rounds.items()}}
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2) + "\n")
+    write_json(args.out, result)
     print(json.dumps({k: result[k]["median"] for k in ("lockstep", "realtime")}, indent=2))
     return 0
 

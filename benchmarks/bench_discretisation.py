@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -28,6 +27,8 @@ from pathlib import Path
 from fxswarm.core.scenario import load
 from fxswarm.study.discretisation import case_toml, ratio, run_floor_case
 from fxswarm.study.parallel import parallel_map
+
+from bench_io import machine, write_json  # a sibling script
 
 DISCRETISATIONS = ("euler", "semi-implicit")
 DTS = (0.02, 0.01, 0.005, 0.002, 0.001, 0.0005)
@@ -114,8 +115,7 @@ def main() -> int:
     results = {
         "benchmark": "discretisation floors: explicit Euler vs semi-implicit (issue 7)",
         "command": "python benchmarks/bench_discretisation.py" + (" --quick" if args.quick else ""),
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                    "loadavg_at_start": os.getloadavg()[0]},
+        "machine": machine(),
         "floor_definition": "worst robot's error over the second half of the run (m)",
         "limit_definition": "hops * dt * max|dp0/dt|, hops = max graph distance to a pinned robot + 1",
         "claims": claims(paper_rows),
@@ -125,8 +125,7 @@ def main() -> int:
         "vs_leader_speed": pick("vs_leader_speed", "leader_speed_mps"),
         "wall_s": time.perf_counter() - start,
     }
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(results, indent=2) + "\n")
+    write_json(args.out, results)
     print(json.dumps(results["claims"], indent=2))
     print(f"wrote {args.out}")
     return 0

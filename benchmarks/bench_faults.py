@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import time
 import tomllib
 from concurrent.futures import ProcessPoolExecutor
@@ -30,6 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from fxswarm.core.scenario import DELAY_COMPENSATIONS
+
+from bench_io import machine, write_json  # a sibling script
 
 ROOT = Path(__file__).resolve().parents[1]
 BASE = ROOT / "configs" / "paper-fast.toml"
@@ -106,13 +107,11 @@ def main() -> None:
         "axes": {"delay_compensation": list(compensations), "drop": list(drops), "delay_s": list(delays)},
         "grid": grid,
         "rows": rows,
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                    "load_avg_1m": os.getloadavg()[0]},
+        "machine": machine(),
         "wall_s": round(time.perf_counter() - start, 1),
     }
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2) + "\n")
+    write_json(out, result)
     print(json.dumps({"axes": result["axes"], "grid": grid}, indent=1))
     print(f"wrote {out}")
 

@@ -24,12 +24,13 @@ import argparse
 import dataclasses
 import json
 import os
-import platform
 import statistics
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from bench_io import machine, write_json  # a sibling script
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "configs" / "paper-fast.toml"
@@ -133,17 +134,15 @@ def main() -> int:
     results = {
         "benchmark": "lock-step run of paper-fast with and without the Rerun logger",
         "command": "benchmarks/bench_logger.py " + " ".join(sys.argv[1:]),
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                    "loadavg_at_start": round(os.getloadavg()[0], 2)},
+        "machine": machine(),
         "target": "multi_process.slowdown_paired_median < 0.10 (median of per-repeat with/without ratios, "
                   "minus 1); in_process is the worst case, for reference",
         "in_process": in_process(args.duration, args.repeats, args.rate),
     }
     if not args.skip_multi:
         results["multi_process"] = multi_process(args.duration, args.repeats)
-    results["machine"]["loadavg_at_end"] = round(os.getloadavg()[0], 2)
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(results, indent=2) + "\n")
+    results["machine"]["load_avg_at_end"] = round(os.getloadavg()[0], 2)
+    write_json(args.out, results)
     print(json.dumps(results, indent=2))
     return 0
 

@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -40,6 +39,8 @@ from fxswarm.runtime.launcher import Swarm, free_port, topology_options  # noqa:
 from fxswarm.runtime.zenoh_bus import TOPOLOGIES  # noqa: E402
 from fxswarm.testing import scenario_with  # noqa: E402
 
+from bench_io import machine, write_json  # noqa: E402  (a sibling script)
+
 PONG = r"""
 import sys, threading, zenoh
 from fxswarm.runtime.launcher import topology_options
@@ -52,13 +53,6 @@ tok = s.liveliness().declare_token("bench/alive/pong")
 sys.stdin.read()
 s.close()
 """
-
-
-def write_json(path: str | Path, data: dict) -> None:
-    """Write a benchmark's result (its folder made if missing)."""
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(data, indent=2) + "\n")
 
 
 def load() -> float:
@@ -223,8 +217,7 @@ def main() -> int:
     only = set(args.only or ("pingpong", "lockstep", "realtime"))
     ticks = 300 if args.quick else 2000
     rt_duration = 4.0 if args.quick else 15.0
-    result: dict = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                                "load_avg_at_start": load()},
+    result: dict = {"machine": machine(),
                     "targets": {"lockstep_ticks_per_s_6": 500, "realtime_p99_ms_6": 5.0, "rss_mb_per_agent": 80}}
     configs = [ROOT / "configs" / "paper-fast.toml", ROOT / "configs" / "large.toml"]
     with tempfile.TemporaryDirectory() as tmp:

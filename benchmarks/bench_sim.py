@@ -11,14 +11,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import statistics
 import time
-from pathlib import Path
 
 from fxswarm.core.scenario import load
 from fxswarm.runtime.sim import Simulation
+
+from bench_io import machine, write_json  # a sibling script
 
 SCENARIOS = ("configs/paper.toml", "configs/large.toml")
 
@@ -43,15 +42,13 @@ def main() -> None:
     args = parser.parse_args()
     results = {
         "benchmark": "in-process simulator (lock-step, in-memory bus)",
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                    "loadavg_at_start": os.getloadavg()[0]},
+        "machine": machine(),
         "target": {"configs/paper.toml": "wall_s_median < 10"},
         "runs": [measure(path, args.repeats) for path in SCENARIOS],
     }
     paper = results["runs"][0]
     results["paper_target_met"] = paper["wall_s_median"] < 10.0
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(results, indent=2) + "\n")
+    write_json(args.out, results)
     print(json.dumps(results, indent=2))
 
 

@@ -26,7 +26,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench_runtime import load, lockstep, write_json  # noqa: E402  (a sibling script)
+from bench_io import write_json  # noqa: E402  (sibling scripts)
+from bench_runtime import load, lockstep  # noqa: E402
 
 from fxswarm.testing import dump_toml  # noqa: E402
 

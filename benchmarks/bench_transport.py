@@ -39,7 +39,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import queue
 import subprocess
 import sys
@@ -50,7 +49,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench_runtime import cpu_s  # noqa: E402  (a sibling script: CPU time from /proc)
+from bench_io import machine, write_json  # noqa: E402  (sibling scripts)
+from bench_runtime import cpu_s  # noqa: E402  (CPU time from /proc)
 
 MECHANISMS = ("queue", "queue-direct", "inline", "inline-direct", "fifo", "bus", "bus-stay")
 IDLE_KEYS = ("agent/90/estimate", "agent/91/estimate", "leader/state")
@@ -292,11 +292,9 @@ def main() -> int:
                 r = measure(mech, n, warmup, runtime)
                 print(json.dumps(r), file=sys.stderr, flush=True)
                 runs.append(r)
-    result = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
+    result = {"machine": machine(),
               "payload_bytes": len(PAYLOAD), "idle_subscriptions": len(IDLE_KEYS), "runs": runs}
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2) + "\n")
+    write_json(args.out, result)
     return 0
 
 
