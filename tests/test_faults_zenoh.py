@@ -142,7 +142,8 @@ def samples(sc) -> dict[str, Message]:
 @pytest.mark.zenoh
 def test_garbage_on_every_key_kills_nothing_is_counted_and_leaves_the_lockstep_run_unchanged(launch_swarm):
     # A long tick timeout: a flooded process may be slow, but lock-step must wait for it, not skip.
-    swarm = launch_swarm(PAPER_FAST, duration=3.0, tick_timeout=20.0)
+    # 5 s (500 ticks): long enough that the run is still going when the attack starts.
+    swarm = launch_swarm(PAPER_FAST, duration=5.0, tick_timeout=20.0)
     sc = swarm.scenario
     rng = np.random.default_rng(4)
     blasts = {topic: garbage_for(topic, msg, rng) for topic, msg in samples(sc).items()}
@@ -165,14 +166,12 @@ def test_garbage_on_every_key_kills_nothing_is_counted_and_leaves_the_lockstep_r
                 if not waiting:
                     matched.set()
 
-        publishers = {}
+        publishers, listeners = {}, []  # listeners kept: an undeclared one stops listening
         for topic in blasts:
-            pub = attacker.session.declare_publisher(f"{attacker.root}/{topic}")
+            pub = publishers[topic] = attacker.session.declare_publisher(f"{attacker.root}/{topic}")
             if topic in waiting:
-                listener = pub.declare_matching_listener(lambda st, topic=topic: on_match(topic, st))
-                publishers[topic + "#listener"] = listener
+                listeners.append(pub.declare_matching_listener(lambda st, topic=topic: on_match(topic, st)))
                 on_match(topic, pub.matching_status)
-            publishers[topic] = pub
         assert matched.wait(30), f"no subscriber on {sorted(waiting)}"
         world = swarm.swarm.children["world"]
         # One payload per key in turn, so every process is hit within the first pass over the keys,
