@@ -21,7 +21,7 @@ file beside the compose file) when it starts the swarm:
 ``FXSWARM_SPEED``          real time: simulation seconds per wall second (1)
 ``FXSWARM_TICK_TIMEOUT``   lock-step: seconds the world waits for a live agent's command (5)
 ``FXSWARM_FAULTS``         fault specs, ``;``-separated, as ``--fault`` takes them
-                           (e.g. ``agent:*->agent:4 loss=0.2; partition 5-8 isolate=3``)
+                           (e.g. ``agent:*->agent:4 drop=0.2; partition 5-8 isolate=3``)
 ``FXSWARM_RUN``            run folder under ``./runs`` (default ``<scenario>-compose``)
 ``FXSWARM_RERUN``          the logger's ``--rerun`` outputs (default ``file``)
 ``FXSWARM_SCENARIO``       scenario file mounted into every container
