@@ -89,8 +89,5 @@ def main(args: argparse.Namespace) -> int:
             run_periodic_loop(proc, sc.dt / args.speed, act,
                               act_early=lambda: agent.sense is not None and agent.sense.tick > agent.acted_tick)
     finally:
-        try:
-            proc.write_counters()
-        finally:
-            proc.close()  # always: an open session hangs the exit
+        proc.finish()
     return proc.exit_status

@@ -64,8 +64,5 @@ def main(args: argparse.Namespace) -> int:
 
             run_periodic_loop(proc, sc.dt / args.speed, act)
     finally:
-        try:
-            proc.write_counters()
-        finally:
-            proc.close()  # always: an open session hangs the exit
+        proc.finish()
     return proc.exit_status

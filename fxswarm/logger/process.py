@@ -164,10 +164,7 @@ class LoggerProcess:
                                 "cpu_s": round(time.process_time(), 3),  # what logging cost this machine
                                 "cpu_s_running": round(time.process_time() - self._cpu_at_start, 3),
                                 "cpu_s_main_thread": round(time.thread_time() - self._thread_at_start, 3)}}
-            try:
-                self.proc.write_counters(extra)
-            finally:
-                self.proc.close()  # always: an open session hangs the exit
+            self.proc.finish(extra)
 
 
 def main(args: argparse.Namespace) -> int:

@@ -134,12 +134,12 @@ class RoleProcess:
         # A busy main thread delays Zenoh's callback threads by the switch interval (5 ms
         # by default, notes/zenoh.md): our callbacks only enqueue, so switch sooner.
         sys.setswitchinterval(float(os.environ.get("FXSWARM_SWITCH_INTERVAL", "0.0005")))
+        who = f"fxswarm {role}" + (f" {ident}" if role == "agent" else "")  # in what it says
         try:
             swarm, options = options_from_args(args, scenario.raw.get("zenoh"), scenario.source)
         except ValueError as exc:
-            print(f"fxswarm {role}: {exc}", file=sys.stderr)
+            print(f"{who}: {exc}", file=sys.stderr)
             raise SystemExit(2) from None
-        who = f"fxswarm {role}" + (f" {ident}" if role == "agent" else "")
         # Refused before the session opens (bad input: one line, exit 2, nothing to close).
         with_faults_or_exit(scenario, getattr(args, "fault", None))
         if args.out:
@@ -298,6 +298,14 @@ class RoleProcess:
 
     def close(self) -> None:
         self.bus.close()
+
+    def finish(self, extra: dict | None = None) -> None:
+        """On the way out: write the counters, then close the session whatever happened (an open
+        session keeps the process from exiting)."""
+        try:
+            self.write_counters(extra)
+        finally:
+            self.close()
 
 
 def run_event_loop(proc: RoleProcess, on_idle=None, step: float = 0.1) -> None:
