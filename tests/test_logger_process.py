@@ -72,6 +72,12 @@ def test_the_logger_process_shows_a_drop_made_at_a_receivers_inbox(launch_swarm)
     assert drops[-1, e] == dropped and np.delete(drops[-1], e).sum() == 0
 
 
+def fxswarm_run(config: Path, out: Path, *extra: str) -> subprocess.CompletedProcess:
+    """``fxswarm run CONFIG --out OUT EXTRA...`` as a user types it."""
+    return subprocess.run([sys.executable, "-m", "fxswarm.cli", "run", str(config), "--out", str(out), *extra],
+                          capture_output=True, text=True, timeout=240)
+
+
 @pytest.mark.zenoh
 def test_fxswarm_run_names_what_it_wrote_and_how_to_view_the_recording(tmp_path):
     """What `make run` prints at the end: the summary, the trajectory and this run's recording."""
@@ -81,8 +87,7 @@ def test_fxswarm_run_names_what_it_wrote_and_how_to_view_the_recording(tmp_path)
     (out / "recording.rrd").write_bytes(b"an earlier run's")
 
     def run(*extra: str) -> str:
-        done = subprocess.run([sys.executable, "-m", "fxswarm.cli", "run", str(config), "--out", str(out), *extra],
-                              capture_output=True, text=True, timeout=240)
+        done = fxswarm_run(config, out, *extra)
         assert done.returncode == 0, done.stderr[-3000:]
         return done.stdout
 
@@ -98,8 +103,7 @@ def test_fxswarm_run_passes_its_rerun_outputs_to_the_logger(tmp_path):
     config = scenario_with(PAPER_FAST, tmp_path, duration=1.0)
     live = tmp_path / "elsewhere" / "live.rrd"
     live.parent.mkdir()
-    done = subprocess.run([sys.executable, "-m", "fxswarm.cli", "run", str(config), "--out", str(tmp_path / "run"),
-                           "--rerun", f"file={live}"], capture_output=True, text=True, timeout=240)
+    done = fxswarm_run(config, tmp_path / "run", "--rerun", f"file={live}")
     assert done.returncode == 0, done.stderr[-3000:]
     assert f"wrote {live} (view it: rerun {live};" in done.stdout, done.stdout
     assert live.stat().st_size > 1000 and not (tmp_path / "run" / "recording.rrd").exists()
@@ -110,7 +114,6 @@ def test_fxswarm_run_passes_its_rerun_outputs_to_the_logger(tmp_path):
     (["--rerun", "spawn", "--no-logger"], "--rerun sets the logger's outputs; it cannot go with --no-logger"),
 ])
 def test_fxswarm_run_refuses_wrong_rerun_outputs_before_starting_anything(tmp_path, extra, said):
-    done = subprocess.run([sys.executable, "-m", "fxswarm.cli", "run", str(PAPER_FAST), "--out", str(tmp_path),
-                           *extra], capture_output=True, text=True, timeout=60)
+    done = fxswarm_run(PAPER_FAST, tmp_path, *extra)
     assert done.returncode == 2 and said in done.stderr, done.stderr
     assert not (tmp_path / "logs").exists()  # no process was started

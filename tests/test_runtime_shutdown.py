@@ -46,11 +46,15 @@ def gone(pid: int) -> bool:
         return True
 
 
+def role_command(*args: str) -> list[str]:
+    """The command line of ``fxswarm ARGS...`` with this interpreter."""
+    return [sys.executable, "-m", "fxswarm.cli", *args]
+
+
 def start_launcher(tmp_path: Path, duration: float, *extra: str) -> subprocess.Popen:
     config = scenario_with(PAPER_FAST, tmp_path, duration=duration)
-    return subprocess.Popen(
-        [sys.executable, "-m", "fxswarm.cli", "run", str(config), "--out", str(tmp_path / "run"), "--no-logger", *extra],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    return subprocess.Popen(role_command("run", str(config), "--out", str(tmp_path / "run"), "--no-logger", *extra),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
 
 
 def wait_for_line(proc: subprocess.Popen, needle: str, timeout: float = 90.0) -> str:
@@ -169,10 +173,6 @@ def test_an_exit_at_run_over_is_planned_even_while_the_world_is_still_there(tmp_
 
 
 # --- bad input, a network that is not there, a folder that cannot be written -----------------
-
-
-def role_command(*args: str) -> list[str]:
-    return [sys.executable, "-m", "fxswarm.cli", *args]
 
 
 @pytest.mark.zenoh
