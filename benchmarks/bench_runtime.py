@@ -1,6 +1,6 @@
 """Benchmarks of the distributed runtime (real processes, real Zenoh sessions).
 
-    python benchmarks/bench_runtime.py [--quick] [--out benchmarks/results/runtime.json]
+    python benchmarks/bench_runtime.py [--quick] [--repeat N] [--out benchmarks/results/runtime.json]
 
 Measures, and writes as JSON:
 
@@ -16,7 +16,11 @@ Measures, and writes as JSON:
 
 Targets (issue 3, this 2-core machine): >= 500 lock-step ticks/s with 6
 agents, p99 < 5 ms with 6 agents, < 80 MB per agent. The machine is shared:
-the load average at each measurement is recorded beside it.
+the load average at each measurement is recorded beside it. One run of a
+swarm swings by 20 % with the load, so each lock-step and real-time figure
+is the median of ``--repeat`` runs (default 3, the scenarios interleaved):
+the entry is the median run, its ``runs`` the headline figures of every
+run, and ``targets_met`` compares the medians with the targets.
 """
 
 from __future__ import annotations
@@ -206,10 +210,57 @@ def realtime(config: Path, folder: Path, duration: float, topology: str | None =
             "load_avg": load()}
 
 
+def median_run(runs: list[dict], key) -> dict:
+    """The run whose ``key(run)`` is the median, with every run's headline figures beside it.
+    Of an even count, the lower of the middle two: let ``key`` grow with how good a run is."""
+    ordered = sorted(runs, key=key)
+    return {**ordered[(len(runs) - 1) // 2], "repeats": len(runs), "runs": [headline(r) for r in runs]}
+
+
+def headline(run: dict) -> dict:
+    if "ticks_per_s" in run:
+        return {"ticks_per_s": round(run["ticks_per_s"], 1), "cpu_ms_per_tick": run["cpu_ms_per_tick"]["total"],
+                "load_avg": round(run["load_avg"], 2)}
+    lat = run["sense_to_command"]
+    return {"p50_ms": round(lat["p50_ms"], 3), "p99_ms": round(lat["p99_ms"], 3), "max_ms": round(lat["max_ms"], 3),
+            "rss_mb_per_agent_max": run["rss_mb_per_agent"]["max"], "load_avg": round(run["load_avg"], 2)}
+
+
+def repeated(measure, configs: list[Path], n: int, key) -> list[dict]:
+    """``measure(config)`` ``n`` times per config, the configs interleaved; the median run of each."""
+    runs: dict[Path, list[dict]] = {c: [] for c in configs}
+    for _ in range(n):
+        for c in configs:
+            runs[c].append(measure(c))
+    return [median_run(runs[c], key) for c in configs]
+
+
+def targets_met(result: dict, targets: dict) -> dict:
+    """The 6-agent medians, and the largest agent seen in any run, against the issue's targets
+    (only those measured)."""
+    out = {}
+    six = [r for r in result.get("lockstep", []) if r["agents"] == 6]
+    if six:
+        v = six[0]["ticks_per_s"]
+        out["lockstep_ticks_per_s_6"] = {"median": round(v, 1), "met": v >= targets["lockstep_ticks_per_s_6"]}
+    six = [r for r in result.get("realtime", []) if r["agents"] == 6]
+    if six:
+        v = six[0]["sense_to_command"]["p99_ms"]
+        out["realtime_p99_ms_6"] = {"median": round(v, 3), "met": v < targets["realtime_p99_ms_6"]}
+    rss = [run["rss_mb_per_agent_max"] for r in result.get("realtime", []) for run in r["runs"]
+           if run["rss_mb_per_agent_max"] is not None]
+    if rss:
+        out["rss_mb_per_agent"] = {"max": round(max(rss), 1), "met": max(rss) < targets["rss_mb_per_agent"]}
+    return out
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "runtime.json"))
-    p.add_argument("--quick", action="store_true", help="fewer ticks (a smoke run)")
+    p.add_argument("--quick", action="store_true", help="fewer ticks, one run each (a smoke run)")
+    p.add_argument("--repeat", type=int, default=None, metavar="N",
+                   help="runs of each lock-step and real-time measurement; the median is reported "
+                        "(default 3, 1 with --quick)")
     p.add_argument("--only", choices=("pingpong", "lockstep", "realtime"), action="append")
     p.add_argument("--topology", choices=TOPOLOGIES, default="auto",
                    help="of the swarms (default: what `fxswarm run` picks, mesh for 6 robots, routed for 24)")
@@ -217,8 +268,11 @@ def main() -> int:
     only = set(args.only or ("pingpong", "lockstep", "realtime"))
     ticks = 300 if args.quick else 2000
     rt_duration = 4.0 if args.quick else 15.0
-    result: dict = {"machine": machine(),
-                    "targets": {"lockstep_ticks_per_s_6": 500, "realtime_p99_ms_6": 5.0, "rss_mb_per_agent": 80}}
+    repeat = args.repeat if args.repeat is not None else (1 if args.quick else 3)
+    if repeat < 1:
+        p.error(f"--repeat: expected at least 1 run, got {repeat}")
+    targets = {"lockstep_ticks_per_s_6": 500, "realtime_p99_ms_6": 5.0, "rss_mb_per_agent": 80}
+    result: dict = {"machine": machine(), "targets": targets}
     configs = [ROOT / "configs" / "paper-fast.toml", ROOT / "configs" / "large.toml"]
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
@@ -226,11 +280,14 @@ def main() -> int:
             result["pingpong"] = [pingpong(500 if args.quick else 3000, t) for t in ("mesh", "routed")]
             print("pingpong", json.dumps(result["pingpong"]), file=sys.stderr)
         if "lockstep" in only:
-            result["lockstep"] = [lockstep(c, folder, ticks, args.topology) for c in configs]
+            result["lockstep"] = repeated(lambda c: lockstep(c, folder, ticks, args.topology), configs, repeat,
+                                          key=lambda r: r["ticks_per_s"])
             print("lockstep", json.dumps(result["lockstep"]), file=sys.stderr)
         if "realtime" in only:
-            result["realtime"] = [realtime(c, folder, rt_duration, args.topology) for c in configs]
+            result["realtime"] = repeated(lambda c: realtime(c, folder, rt_duration, args.topology), configs,
+                                          repeat, key=lambda r: -r["sense_to_command"]["p99_ms"])
             print("realtime", json.dumps(result["realtime"]), file=sys.stderr)
+    result["targets_met"] = targets_met(result, targets)
     write_json(args.out, result)
     print(json.dumps(result, indent=2))
     return 0
