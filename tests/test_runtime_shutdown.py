@@ -223,6 +223,23 @@ def test_a_port_already_taken_is_a_clear_error_not_a_traceback(tmp_path, role):
     assert "Traceback" not in done.stderr
 
 
+@pytest.mark.zenoh
+@pytest.mark.parametrize("topology", ["mesh", "routed"])
+def test_a_launcher_whose_router_cannot_listen_says_so_at_once(tmp_path, topology):
+    """Its router dies (the port is taken): the launcher reports that death, not a connect timeout
+    30 s later (routed: its own session is a client of that router)."""
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = str(taken.getsockname()[1])
+        done = subprocess.run(role_command("run", str(PAPER_FAST), "--out", str(tmp_path / "run"), "--no-logger",
+                                           "--port", port, "--topology", topology),
+                              capture_output=True, text=True, timeout=25)
+    assert done.returncode == 1
+    assert "the swarm did not start: router" in done.stderr and "Address already in use" in done.stderr, done.stderr
+    assert "Traceback" not in done.stderr and "waiting for the router" not in done.stderr, done.stderr
+
+
 @pytest.mark.parametrize("command", [
     ["sim", str(PAPER_FAST), "--out", "{blocked}"],
     ["run", str(PAPER_FAST), "--out", "{blocked}"],

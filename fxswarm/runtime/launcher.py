@@ -29,7 +29,7 @@ import socket
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -43,7 +43,7 @@ from fxswarm.faults.process import ProcessSchedule
 from fxswarm.runtime.output import prepare_run_folder, write_summary
 from fxswarm.runtime.process import CLOCKS, PARENT_ENV
 from fxswarm.runtime.sim_cli import load_or_exit, with_faults_or_exit
-from fxswarm.runtime.zenoh_bus import TOPOLOGIES, ZenohBus, ZenohOptions, check_sender, zenoh_table
+from fxswarm.runtime.zenoh_bus import TOPOLOGIES, ConnectError, ZenohBus, ZenohOptions, check_sender, zenoh_table
 
 # "auto" meshes swarms up to this many robots. Measured (docs/DESIGN.md "Topology"): with 6 robots
 # a mesh takes the router's hop out of every message (4-24 % more lock-step ticks/s, real-time
@@ -258,7 +258,7 @@ class Swarm:
         world = self.children.pop("world")
         for child in self.children.values():
             self._spawn(child)
-        self.bus = ZenohBus(self.swarm, self.options, validate=True)
+        self.bus = self._open_bus(t0 + timeout)
         self.bus.watch_alive("**", self._on_alive)
         self.bus.subscribe(topics.WORLD_STATE, self._on_state, raw=True)
         required = [c for c in self.children.values() if c.role != "logger"]
@@ -275,6 +275,22 @@ class Swarm:
         self._spawn(world)
         self._wait_alive([world], t0 + timeout + 5.0)
         return time.monotonic() - t0
+
+    def _open_bus(self, deadline: float) -> ZenohBus:
+        """The launcher's own session. A client (routed) needs the router it has just started,
+        which takes a moment to come up or may die (its port taken): try in 1 s attempts while it
+        runs, and say why it died rather than wait out a connect timeout."""
+        router = self.children["router"]
+        attempt = replace(self.options, connect_timeout_ms=1000)
+        while True:
+            try:
+                return ZenohBus(self.swarm, attempt, validate=True, who="fxswarm run")
+            except ConnectError as exc:
+                code = router.popen.poll()
+                if code is not None:
+                    raise StartError(Death(router, code).describe()) from None
+                if time.monotonic() > deadline:
+                    raise StartError(str(exc)) from None
 
     def _on_alive(self, name: str, up: bool) -> None:
         (self.alive.add if up else self.alive.discard)(name)
