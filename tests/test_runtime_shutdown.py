@@ -95,6 +95,9 @@ def test_ctrl_c_stops_every_process_within_5_s_and_says_what_it_stopped(tmp_path
 @pytest.mark.zenoh
 @pytest.mark.parametrize("role", ["world", "leader"])
 def test_world_or_leader_death_ends_the_run_non_zero_naming_it(tmp_path, role):
+    logs = tmp_path / "run" / "logs"
+    logs.mkdir(parents=True)
+    (logs / f"{role}.log").write_text("a previous run's last words\n")  # the same --out, run again
     launcher = start_launcher(tmp_path, 300.0)
     try:
         wait_for_line(launcher, "processes up")
@@ -104,6 +107,7 @@ def test_world_or_leader_death_ends_the_run_non_zero_naming_it(tmp_path, role):
         _, err = launcher.communicate(timeout=15)
         assert launcher.returncode == 1
         assert f"{role} (pid {victim}) died: killed by SIGKILL" in err
+        assert "a previous run's last words" not in err  # its last output is this run's
         assert all(gone(pid) for pid in kids)
     finally:
         if launcher.poll() is None:

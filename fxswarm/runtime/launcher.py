@@ -255,6 +255,9 @@ class Swarm:
         planned = self.planned()
         for child in planned:
             self.children[child.name] = child
+            # A log is appended to within a run (a restarted process), never across runs: what
+            # a death reports as its last output must be this run's.
+            child.log_path.unlink(missing_ok=True)
         world = self.children.pop("world")
         for child in self.children.values():
             self._spawn(child)
