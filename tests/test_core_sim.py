@@ -1,6 +1,8 @@
 """The in-process simulator on the paper's scenario: the outcomes the core issue asks for."""
 
 import json
+import os
+import platform
 import subprocess
 import sys
 
@@ -72,6 +74,10 @@ def test_progress_line_is_shown_and_quiet_hides_it(paper_fast_run, tmp_path):
     quiet = subprocess.run([sys.executable, "-m", "fxswarm.cli", "sim", str(sc), "--out", str(tmp_path / "o"),
                             "--quiet"], capture_output=True, text=True, timeout=120)
     assert quiet.returncode == 0 and quiet.stderr == "" and quiet.stdout == ""
+    # A run shorter than one report period (0.5 s) still ends on its progress line.
+    short = subprocess.run([sys.executable, "-m", "fxswarm.cli", "sim", str(sc), "--out", str(tmp_path / "s")],
+                           capture_output=True, text=True, timeout=120)
+    assert short.returncode == 0 and "t =    0.99 / 1 s" in short.stderr and "ticks/s" in short.stderr, short.stderr
 
 
 def test_simulation_is_deterministic():
@@ -131,3 +137,25 @@ def test_paper_scenario_300_s_passes_every_obstacle(tmp_path):
     assert s["formation_error_final_m"] <= 0.15 and s["estimate_error_final_m"] <= 0.15
     top = max(o.position(0.0)[2] for o in sc.obstacles)
     assert traj["p"][-1, :, 2].min() > top + 1.5  # every robot ended well above the highest obstacle
+
+
+@pytest.mark.skipif(platform.machine() != "x86_64", reason="OpenBLAS core types named here are x86's")
+def test_a_trajectory_does_not_depend_on_which_blas_kernel_the_machine_picks(tmp_path):
+    """OpenBLAS picks its kernels per CPU, or as OPENBLAS_CORETYPE says (this machine's
+    environment sets it; a container does not inherit it), and they round differently: the law
+    must not go through BLAS, or a compose run parts from `fxswarm sim` on the host."""
+    sc = tmp_path / "to-the-first-avoidance.toml"  # the first avoidance begins at 5.5 s
+    sc.write_text(open("configs/paper-fast.toml").read().replace("duration = 40.0", "duration = 8.0"))
+    runs = {}
+    for core in ("Prescott", None):  # the oldest x86-64 kernel, and what the machine picks
+        env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_CORETYPE"}
+        if core:
+            env["OPENBLAS_CORETYPE"] = core
+        out = tmp_path / (core or "auto")
+        done = subprocess.run([sys.executable, "-m", "fxswarm.cli", "sim", str(sc), "--out", str(out), "--quiet"],
+                              capture_output=True, text=True, timeout=120, env=env)
+        assert done.returncode == 0, done.stderr
+        runs[core] = load_trajectory(out)
+    assert runs[None]["avoid_active"].any(), "no avoidance in the segment: nothing compared"
+    for key, value in runs[None].items():
+        assert np.array_equal(value, runs["Prescott"][key]), key

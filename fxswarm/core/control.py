@@ -27,6 +27,17 @@ EPS = 1e-9
 COINCIDENT_PUSH_DIRECTION = np.array([0.0, 0.0, 1.0])
 
 
+def dot3(a, b) -> float:
+    """``a . b`` of two 3-vectors in plain float arithmetic, summed left to right.
+
+    Not ``a @ b``: numpy hands that to BLAS (ddot), whose kernel OpenBLAS picks per CPU or
+    from ``OPENBLAS_CORETYPE``, and the kernels round differently. A trajectory would then
+    depend on the machine's BLAS: a container (which does not inherit the variable) parted
+    from ``fxswarm sim`` on the host by 1e-15 m at the first avoidance (docs/DESIGN.md).
+    """
+    return float(a[0]) * float(b[0]) + float(a[1]) * float(b[1]) + float(a[2]) * float(b[2])
+
+
 def sig(x: np.ndarray | float, a: float) -> np.ndarray | float:
     """``|x|^a * sign(x)`` element by element (the paper's ``x^[a]``)."""
     return np.sign(x) * np.abs(x) ** a
@@ -174,7 +185,7 @@ def _formation_velocity_floats(e: list[float], dph: list[float], dp0: list[float
 
 def avoidance_task(u: np.ndarray, d: float) -> float:
     """``rt = d^2/2 - |u|^2/2``, the avoidance task error (eq. (2)); active iff positive."""
-    return 0.5 * d * d - 0.5 * float(u @ u)
+    return 0.5 * d * d - 0.5 * dot3(u, u)
 
 
 def avoidance_velocity(u: np.ndarray, vo: np.ndarray, d: float, g: BehaviourGains) -> np.ndarray:
@@ -186,10 +197,10 @@ def avoidance_velocity(u: np.ndarray, vo: np.ndarray, d: float, g: BehaviourGain
     undefined; push along :data:`COINCIDENT_PUSH_DIRECTION` at the task rate.
     """
     rt = avoidance_task(u, d)
-    u2 = float(u @ u)
+    u2 = dot3(u, u)
     if u2 < EPS * EPS:
         return COINCIDENT_PUSH_DIRECTION * task_rate(rt, g) / d
-    return u / u2 * (task_rate(rt, g) + float(u @ vo))  # eq. (v1)
+    return u / u2 * (task_rate(rt, g) + dot3(u, vo))  # eq. (v1)
 
 
 def merged_velocity(v_io: np.ndarray | None, u: np.ndarray, v_if: np.ndarray) -> np.ndarray:
@@ -200,16 +211,16 @@ def merged_velocity(v_io: np.ndarray | None, u: np.ndarray, v_if: np.ndarray) ->
     """
     if v_io is None:
         return v_if
-    u2 = float(u @ u)
+    u2 = dot3(u, u)
     if u2 < EPS * EPS:
         u = COINCIDENT_PUSH_DIRECTION
         u2 = 1.0
-    return v_io + v_if - u * (float(u @ v_if) / u2)  # eq. (v)
+    return v_io + v_if - u * (dot3(u, v_if) / u2)  # eq. (v)
 
 
 def null_space_projector(u: np.ndarray) -> np.ndarray:
     """``I - u u^T / |u|^2``, shape (3, 3): the projector eq. (v) applies to ``v_if``."""
-    u2 = float(u @ u)
+    u2 = dot3(u, u)
     if u2 < EPS * EPS:
         u, u2 = COINCIDENT_PUSH_DIRECTION, 1.0
     return np.eye(3) - np.outer(u, u) / u2
@@ -222,7 +233,7 @@ def limit_speed(v: np.ndarray, v_max: float | None) -> tuple[np.ndarray, bool]:
     """
     if v_max is None:
         return v, False
-    speed = math.sqrt(float(v @ v))
+    speed = math.sqrt(dot3(v, v))
     if speed <= v_max:
         return v, False
     return v * (v_max / speed), True
@@ -498,7 +509,7 @@ def formation_velocity_semi_implicit(
     Guard: for ``|e| < EPS`` the robot just follows its reference, as in eq. (v2).
     """
     feedforward = dph_i + dp_i0
-    e2 = float(e_i @ e_i)
+    e2 = dot3(e_i, e_i)
     if e2 < EPS * EPS:
         return feedforward
     rho = 0.5 * e2

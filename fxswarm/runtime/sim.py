@@ -49,7 +49,8 @@ class Simulation:
             attach(self.bus, node)
 
     def run(self, progress=None) -> dict:
-        """Run to the end; ``progress(world, ticks_per_s)`` is called about twice a second."""
+        """Run to the end; ``progress(world, ticks_per_s)`` is called about twice a second, and
+        once at the end."""
         start = time.perf_counter()
         last_report = start
         self.bus.publish_all(self.world.start())
@@ -63,6 +64,8 @@ class Simulation:
                 progress(self.world, self.world.tick / (now - start))
                 last_report = now
         wall = time.perf_counter() - start
+        if progress is not None:  # the final line, also for a run shorter than one report period
+            progress(self.world, self.world.tick / max(wall, 1e-9))
         summary = summarise(self.scenario, self.world.trajectory(), wall)
         summary["counters"] = {"bus": self.bus.counters.as_dict(), "missed_ticks": self.world.missed_ticks}
         summary["speed_limited_ticks"] = sum(a.speed_limited for a in self.agents)
