@@ -275,6 +275,27 @@ def test_a_wrong_fault_spec_is_refused_by_the_launcher_and_by_each_role(tmp_path
     assert said in done.stderr and "Traceback" not in done.stderr, done.stderr
 
 
+@pytest.mark.parametrize("command, said", [
+    (["run", "--speed", "0"], "argument --speed: expected a number > 0, got '0'"),
+    (["run", "--tick-timeout", "0"], "argument --tick-timeout: expected a number > 0, got '0'"),
+    (["run", "--max-lag", "-1"], "argument --max-lag: expected an integer >= 0, got '-1'"),
+    (["run", "--port", "70000"], "argument --port: expected a TCP port in 1..65535, got '70000'"),
+    (["world", "--tick-timeout", "nan"], "argument --tick-timeout: expected a finite number, got 'nan'"),
+    (["agent", "--id", "2", "--speed", "-4"], "argument --speed: expected a number > 0, got '-4'"),
+    (["leader", "--world-timeout", "-1"], "argument --world-timeout: expected a number >= 0, got '-1'"),
+    (["sweep", "--workers", "0"], "argument --workers: expected an integer > 0, got '0'"),
+])
+def test_a_number_out_of_range_is_refused_in_one_line_before_anything_starts(tmp_path, command, said):
+    """Before, ``run --speed 0`` started every process and each died with a traceback, and
+    ``--tick-timeout 0`` ran the whole lock-step run on missed ticks and exited 0."""
+    role, *options = command
+    done = subprocess.run(role_command(role, str(PAPER_FAST), *options, "--out", str(tmp_path / "run")),
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2, done.stderr
+    assert said in done.stderr and "Traceback" not in done.stderr, done.stderr
+    assert not (tmp_path / "run").exists()  # refused before any work
+
+
 @pytest.mark.zenoh
 def test_a_process_that_cannot_write_its_counters_still_closes_its_session_and_exits(tmp_path):
     """An open Zenoh session keeps a process from exiting: whatever fails on the way out, it is closed."""

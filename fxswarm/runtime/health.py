@@ -20,6 +20,8 @@ import argparse
 import os
 import sys
 
+from fxswarm.runtime.numbers import positive
+
 ROLES = ("router", "world", "leader", "agent", "logger")
 DEFAULT_CONNECT = "tcp/router:7447"
 
@@ -31,7 +33,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="swarm name (default: $FXSWARM_SWARM, else 'default')")
     p.add_argument("--connect", default=os.environ.get("FXSWARM_CONNECT", DEFAULT_CONNECT), metavar="ENDPOINT",
                    help=f"router to ask (default: $FXSWARM_CONNECT, else {DEFAULT_CONNECT})")
-    p.add_argument("--timeout", type=float, default=2.0, metavar="S",
+    p.add_argument("--timeout", type=positive, default=2.0, metavar="S",
                    help="how long to wait for the router and for the answer (default 2 s)")
     p.add_argument("--quiet", action="store_true", help="no line on stdout")
 

@@ -40,6 +40,7 @@ from fxswarm.core.scenario import Scenario
 from fxswarm.faults.apply import merge_process_links
 from fxswarm.faults.plan import CLI_HELP as FAULT_HELP
 from fxswarm.faults.process import ProcessSchedule
+from fxswarm.runtime.numbers import non_negative_int, port, positive, positive_int
 from fxswarm.runtime.output import prepare_run_folder, write_summary
 from fxswarm.runtime.process import CLOCKS, PARENT_ENV
 from fxswarm.runtime.sim_cli import load_or_exit, with_faults_or_exit
@@ -503,18 +504,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default=None, help="run folder (default: runs/<scenario name>)")
     p.add_argument("--clock", choices=CLOCKS, default="lockstep",
                    help="lockstep (bit-identical to `fxswarm sim`) or realtime")
-    p.add_argument("--speed", type=float, default=1.0, help="real time: simulation seconds per wall second")
+    p.add_argument("--speed", type=positive, default=1.0, help="real time: simulation seconds per wall second")
     p.add_argument("--swarm", default=None, help="key prefix (default: <scenario name>-<launcher pid>)")
-    p.add_argument("--port", type=int, default=None, help="router port on 127.0.0.1 (default: a free one)")
-    p.add_argument("--tick-timeout", type=float, default=1.0, metavar="S",
+    p.add_argument("--port", type=port, default=None, help="router port on 127.0.0.1 (default: a free one)")
+    p.add_argument("--tick-timeout", type=positive, default=1.0, metavar="S",
                    help="lock-step: a tick waits at most S s for its commands (default 1)")
     p.add_argument("--topology", choices=TOPOLOGIES, default=None,
                    help="mesh: peers on direct links, the router only where they meet; routed: every "
                         f"message through the router; auto: mesh up to {MESH_MAX_ROBOTS} robots unless a process "
                         "is to be frozen (default: "
                         "the scenario's [zenoh] topology, else auto)")
-    p.add_argument("--lease-ms", type=int, default=None, help="zenoh lease (how fast a frozen process is seen gone)")
-    p.add_argument("--max-lag", type=int, default=None, metavar="TICKS",
+    p.add_argument("--lease-ms", type=positive_int, default=None, help="zenoh lease (how fast a frozen process is seen gone)")
+    p.add_argument("--max-lag", type=non_negative_int, default=None, metavar="TICKS",
                    help="real time: the world holds its clock while a robot is more than TICKS ticks behind "
                         "(default 10; 0: never)")
     p.add_argument("--no-logger", action="store_true", help="do not start the Rerun logger process")
@@ -523,7 +524,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "running viewer), spawn (a local viewer), web[=PORT] (default: file, OUT/recording.rrd); "
                         "e.g. file,spawn to watch the run live and keep the recording")
     p.add_argument("--fail-fast", action="store_true", help="end the run when any agent dies")
-    p.add_argument("--start-timeout", type=float, default=60.0, help="seconds to wait for every process to be up")
+    p.add_argument("--start-timeout", type=positive, default=60.0, help="seconds to wait for every process to be up")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     p.add_argument("--fault", action="append", default=None, metavar="SPEC", help=FAULT_HELP)
 

@@ -31,6 +31,7 @@ from fxswarm.core.messages import Message
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.apply import process_counters, wrap_for_process
 from fxswarm.faults.plan import CLI_HELP as FAULT_HELP
+from fxswarm.runtime.numbers import non_negative, positive
 from fxswarm.runtime.output import prepare_run_folder
 from fxswarm.runtime.sim_cli import with_faults_or_exit
 from fxswarm.runtime.zenoh_bus import ConnectError, ZenohBus, add_zenoh_arguments, options_from_args, wait_until
@@ -47,15 +48,15 @@ def add_process_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--clock", choices=CLOCKS, default="lockstep",
                    help="lockstep: the tick protocol, bit-identical to `fxswarm sim`; "
                         "realtime: each process loops at its own rate on the latest data")
-    p.add_argument("--speed", type=float, default=1.0,
+    p.add_argument("--speed", type=positive, default=1.0,
                    help="real time only: simulation seconds per wall second (default 1)")
-    p.add_argument("--stale-after", type=float, default=None, metavar="S",
+    p.add_argument("--stale-after", type=positive, default=None, metavar="S",
                    help="real time: a message older than S simulation seconds is counted stale "
                         "(default: 5 control periods)")
     p.add_argument("--out", default=None,
                    help="run folder; this process writes its counters to OUT/processes/<role>-<id>.json")
     p.add_argument("--fault", action="append", default=None, metavar="SPEC", help=FAULT_HELP)
-    p.add_argument("--world-timeout", type=float, default=DEFAULT_WORLD_TIMEOUT_S, metavar="S",
+    p.add_argument("--world-timeout", type=non_negative, default=DEFAULT_WORLD_TIMEOUT_S, metavar="S",
                    help="agents, leader, logger: how long to wait for a world that is gone without having "
                         "ended the run (a network cut longer than the Zenoh lease, a frozen or crashed world) "
                         f"before giving up, exit status 1 (default {DEFAULT_WORLD_TIMEOUT_S:g}; 0: forever)")

@@ -32,6 +32,7 @@ import zenoh
 from fxswarm.core import bus as topics
 from fxswarm.core.bus import Counters, Handler
 from fxswarm.core.messages import Clock, Command, Estimate, LeaderState, Message, Sense, WireError, WorldState, decode, encode
+from fxswarm.runtime.numbers import non_negative, positive_int
 
 AliveHandler = Callable[[str, bool], None]  # (``role/id``, up?)
 
@@ -139,9 +140,9 @@ def add_zenoh_arguments(p: argparse.ArgumentParser, default_swarm: str = "defaul
                    help="enable UDP multicast scouting (default for peers)")
     g.add_argument("--no-multicast", dest="multicast", action="store_false",
                    help="disable UDP multicast scouting")
-    g.add_argument("--lease-ms", type=int, default=None,
+    g.add_argument("--lease-ms", type=positive_int, default=None,
                    help="session lease: how fast a frozen process is seen as gone")
-    g.add_argument("--connect-timeout", type=float, default=30.0, metavar="S",
+    g.add_argument("--connect-timeout", type=non_negative, default=30.0, metavar="S",
                    help="a client: how long to wait for its router before giving up (default 30; 0: forever)")
 
 

@@ -50,6 +50,7 @@ from fxswarm.core.bounds import (
 )
 from fxswarm.core.control import BehaviourGains
 from fxswarm.core.scenario import DISCRETISATIONS, VARIANTS, Scenario, ScenarioWarning
+from fxswarm.runtime.numbers import positive, positive_int
 from fxswarm.runtime.output import prepare_run_folder
 from fxswarm.study.measure import initial_errors, settle_times
 from fxswarm.study.parallel import parallel_map
@@ -261,11 +262,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="factors applied to the initial displacement and estimate error (default: %(default)s)")
     p.add_argument("--variants", default=",".join(VARIANTS), help="controller variants (default: %(default)s)")
     p.add_argument("--out", default=None, help="folder for sweep.json and the figure (default: runs/<name>-sweep)")
-    p.add_argument("--dt", type=float, default=None, help="control period, s (default: the scenario's)")
-    p.add_argument("--duration", type=float, default=None,
+    p.add_argument("--dt", type=positive, default=None, help="control period, s (default: the scenario's)")
+    p.add_argument("--duration", type=positive, default=None,
                    help="simulated time per case, s (default: from each case's bounds)")
-    p.add_argument("--max-duration", type=float, default=400.0, help="cap on the per-case duration, s")
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="parallel processes (default: cores)")
+    p.add_argument("--max-duration", type=positive, default=400.0, help="cap on the per-case duration, s")
+    p.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1, help="parallel processes (default: cores)")
     p.add_argument("--avoidance", action="store_true",
                    help="keep obstacles and collision avoidance (default: off, to measure the laws alone)")
     p.add_argument("--discretisation", choices=DISCRETISATIONS, default=None,

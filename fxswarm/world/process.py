@@ -29,6 +29,7 @@ from fxswarm.core.messages import Command, Message
 from fxswarm.core.metrics import summarise
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.apply import world_process_summary
+from fxswarm.runtime.numbers import non_negative_int, positive
 from fxswarm.runtime.output import write_run
 from fxswarm.runtime.process import RoleProcess, add_process_arguments, run_periodic_loop, wrap_node
 from fxswarm.runtime.sim_cli import load_or_exit
@@ -37,13 +38,13 @@ from fxswarm.world.node import WorldNode
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_process_arguments(p)
-    p.add_argument("--tick-timeout", type=float, default=1.0, metavar="S",
+    p.add_argument("--tick-timeout", type=positive, default=1.0, metavar="S",
                    help="lock-step: close a tick after S wall seconds without every command (default 1)")
-    p.add_argument("--max-lag", type=int, default=10, metavar="TICKS",
+    p.add_argument("--max-lag", type=non_negative_int, default=10, metavar="TICKS",
                    help="real time: hold the clock while a live robot's latest command is more than TICKS "
                         "ticks old (robots share this machine's CPUs; in the field each has its own), at most "
                         "--tick-timeout s at a time; 0: never hold (default 10)")
-    p.add_argument("--wait-timeout", type=float, default=120.0, metavar="S",
+    p.add_argument("--wait-timeout", type=positive, default=120.0, metavar="S",
                    help="give up (exit 3) if the leader and all agents are not up within S s (default 120)")
 
 
