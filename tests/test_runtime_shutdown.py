@@ -284,6 +284,7 @@ def test_a_wrong_fault_spec_is_refused_by_the_launcher_and_by_each_role(tmp_path
     (["agent", "--id", "2", "--speed", "-4"], "argument --speed: expected a number > 0, got '-4'"),
     (["leader", "--world-timeout", "-1"], "argument --world-timeout: expected a number >= 0, got '-1'"),
     (["sweep", "--workers", "0"], "argument --workers: expected an integer > 0, got '0'"),
+    (["logger", "--rate", "0"], "argument --rate: expected a number > 0, got '0'"),
 ])
 def test_a_number_out_of_range_is_refused_in_one_line_before_anything_starts(tmp_path, command, said):
     """Before, ``run --speed 0`` started every process and each died with a traceback, and

@@ -33,6 +33,7 @@ from fxswarm.logger.inbox import Inbox
 from fxswarm.logger.peek import Header, peek_header
 from fxswarm.logger.recorder import RECORDER_TOPICS, RecorderOptions, SwarmRecorder
 from fxswarm.logger.sinks import OutputError, open_recording, parse_outputs
+from fxswarm.runtime.numbers import positive, positive_int
 from fxswarm.runtime.process import RoleProcess, add_process_arguments
 from fxswarm.runtime.sim_cli import load_or_exit
 from fxswarm.runtime.zenoh_bus import check_sender
@@ -52,10 +53,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--rerun", default="file", metavar="OUTPUTS",
                    help="comma-separated outputs: file[=PATH] (default OUT/recording.rrd), grpc[=URL] "
                         "(a running viewer), spawn (a local viewer), web[=PORT] (serve the web viewer)")
-    g.add_argument("--rate", type=float, default=None, metavar="HZ",
+    g.add_argument("--rate", type=positive, default=None, metavar="HZ",
                    help="frames per second of simulation time (default: [logging] rate_hz, else 25)")
     g.add_argument("--velocities", action="store_true", default=None, help="draw velocity arrows")
-    g.add_argument("--inbox", type=int, default=4096, metavar="N",
+    g.add_argument("--inbox", type=positive_int, default=4096, metavar="N",
                    help="ring buffer size, messages; beyond it the oldest are dropped and counted")
     g.add_argument("--recording-id", default=None, help="Rerun recording id (default: one per run)")
     g.add_argument("--nice", type=int, default=10, metavar="N",
