@@ -9,51 +9,31 @@ from __future__ import annotations
 
 import argparse
 import math
+from typing import Callable
 
 
-def _number(text: str, kind: type) -> int | float:
-    try:
-        value = kind(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected {'an integer' if kind is int else 'a number'}, "
-                                         f"got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return value
+def _type(kind: type, low: float, high: float, what: str, strict: bool = False) -> Callable[[str], int | float]:
+    """An argparse type: a finite ``kind`` in ``[low, high]`` (``(low, high]`` if ``strict``)."""
+
+    def parse(text: str) -> int | float:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+        if not (low < value if strict else low <= value) or value > high:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+        return value
+
+    parse.__name__ = what  # what argparse's own messages would call it
+    return parse
 
 
-def positive(text: str) -> float:
-    """A finite number > 0 (a speed, a period, a timeout that must end)."""
-    value = _number(text, float)
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
-    return value
-
-
-def non_negative(text: str) -> float:
-    """A finite number >= 0 (a timeout where 0 means forever or never)."""
-    value = _number(text, float)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
-    return value
-
-
-def positive_int(text: str) -> int:
-    value = _number(text, int)
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"expected an integer > 0, got {text!r}")
-    return value
-
-
-def non_negative_int(text: str) -> int:
-    value = _number(text, int)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
-    return value
-
-
-def port(text: str) -> int:
-    value = _number(text, int)
-    if not 1 <= value <= 65535:
-        raise argparse.ArgumentTypeError(f"expected a TCP port in 1..65535, got {text!r}")
-    return value
+#: A speed, a period, a timeout that must end.
+positive = _type(float, 0, math.inf, "a number > 0", strict=True)
+#: A timeout where 0 means forever (or never).
+non_negative = _type(float, 0, math.inf, "a number >= 0")
+positive_int = _type(int, 0, math.inf, "an integer > 0", strict=True)
+non_negative_int = _type(int, 0, math.inf, "an integer >= 0")
+port = _type(int, 1, 65535, "a TCP port in 1..65535")
