@@ -281,20 +281,22 @@ class Swarm:
         return time.monotonic() - t0
 
     def _open_bus(self, deadline: float) -> ZenohBus:
-        """The launcher's own session. A client (routed) needs the router it has just started,
-        which takes a moment to come up or may die (its port taken): try in 1 s attempts while it
-        runs, and say why it died rather than wait out a connect timeout."""
+        """The launcher's own session. A client (routed) waits for the router it has just started,
+        which takes a moment to come up or may die (its port taken): then say why it died rather
+        than wait out the connect timeout."""
         router = self.children["router"]
-        attempt = replace(self.options, connect_timeout_ms=1000)
-        while True:
-            try:
-                return ZenohBus(self.swarm, attempt, validate=True, who="fxswarm run")
-            except ConnectError as exc:
-                code = router.popen.poll()
-                if code is not None:
-                    raise StartError(Death(router, code).describe()) from None
-                if time.monotonic() > deadline:
-                    raise StartError(str(exc)) from None
+
+        def router_still_up() -> None:  # between two attempts to reach it
+            code = router.popen.poll()
+            if code is not None:
+                raise StartError(Death(router, code).describe())
+
+        wait_ms = max(1000, int((deadline - time.monotonic()) * 1000))
+        try:
+            return ZenohBus(self.swarm, replace(self.options, connect_timeout_ms=wait_ms), validate=True,
+                            who="fxswarm run", on_wait=router_still_up)
+        except ConnectError as exc:
+            raise StartError(str(exc)) from None
 
     def _on_alive(self, name: str, up: bool) -> None:
         (self.alive.add if up else self.alive.discard)(name)

@@ -95,12 +95,15 @@ class ConnectError(RuntimeError):
     """No Zenoh session: the router stayed unreachable, or the configuration was refused."""
 
 
-def open_session(options: ZenohOptions, who: str = "fxswarm") -> zenoh.Session:
+def open_session(options: ZenohOptions, who: str = "fxswarm",
+                 on_wait: Callable[[], None] | None = None) -> zenoh.Session:
     """``zenoh.open``, for a client in attempts of at most 1 s until ``connect_timeout_ms``.
 
     A client blocks in ``zenoh.open`` until its router answers, deaf to Ctrl-C (a signal is
     handled only between Python steps) and silent. In 1 s steps a signal ends the wait within
     a second, and a wait is announced once. Raises :class:`ConnectError`, never a traceback.
+    ``on_wait()``, if given, is called after each failed attempt instead of the announcement,
+    and may raise to end the wait (the launcher: the router it started has died).
     """
     if options.mode != "client" or not options.connect:
         try:
@@ -119,7 +122,9 @@ def open_session(options: ZenohOptions, who: str = "fxswarm") -> zenoh.Session:
             if deadline is not None and time.monotonic() >= deadline:
                 raise ConnectError(f"{who}: no router answered at {where} within {total_s:g} s "
                                    f"(is it running, and is the address right?): {exc}") from None
-        if not announced:
+        if on_wait is not None:
+            on_wait()
+        elif not announced:
             announced = True
             limit = "until it answers" if deadline is None else f"up to {total_s:g} s"
             print(f"{who}: waiting for the router at {where} ({limit})", file=sys.stderr, flush=True)
@@ -182,8 +187,6 @@ def options_from_args(args: argparse.Namespace, table: dict | None = None,
     listen = tuple(args.listen or table.get("listen") or ())
     multicast = args.multicast if args.multicast is not None else table.get("multicast", mode == "peer")
     lease = args.lease_ms if args.lease_ms is not None else table.get("lease_ms")
-    if args.connect_timeout < 0:
-        raise ValueError(f"--connect-timeout: expected seconds >= 0 (0: forever), got {args.connect_timeout:g}")
     wait_ms = int(args.connect_timeout * 1000) if args.connect_timeout > 0 else -1
     return swarm, ZenohOptions(mode, connect, listen, bool(multicast), lease, wait_ms)
 
@@ -227,7 +230,7 @@ class ZenohBus:
     """One Zenoh session of one process, with the :class:`~fxswarm.core.bus.Bus` interface."""
 
     def __init__(self, swarm: str, options: ZenohOptions, validate: bool = True, drop_when_congested: bool = False,
-                 batch: bool = False, who: str = "fxswarm") -> None:
+                 batch: bool = False, who: str = "fxswarm", on_wait: Callable[[], None] | None = None) -> None:
         """``drop_when_congested``: publish with Zenoh's DROP congestion control instead of BLOCK.
 
         Lock-step needs every message (BLOCK); in real time a message is worth less than
@@ -239,7 +242,8 @@ class ZenohBus:
         ~15 % less CPU per tick; in real time it added 0.5-2 ms to the median
         sense-to-command latency, so real time keeps ``express`` (docs/DESIGN.md).
 
-        ``who`` names the process in what :func:`open_session` says or raises.
+        ``who`` names the process in what :func:`open_session` says or raises; ``on_wait`` is
+        its hook between attempts to reach a router.
         """
         self.swarm = swarm
         self._congestion = zenoh.CongestionControl.DROP if drop_when_congested else zenoh.CongestionControl.BLOCK
@@ -259,7 +263,7 @@ class ZenohBus:
         self._subscribers: list = []
         self._tokens: list = []
         self._warned: set[str] = set()
-        self.session = open_session(options, who)
+        self.session = open_session(options, who, on_wait)
 
     # --- Bus protocol ---------------------------------------------------------------------
 
