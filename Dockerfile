@@ -1,4 +1,6 @@
-# One image for every role of the swarm: `fxswarm router|world|leader|agent|logger ...`.
+# One image for every role of the swarm: `fxswarm router|world|leader|agent|logger ...`, for
+# development. Deployments use one slim image per role: agents/, world/, leader/ and logger/
+# each hold their Dockerfile (docker/build-images.sh builds them; docs/deploy.md).
 #
 #   docker build -t fxswarm .                                              # base from a registry
 #   docker/build-base-image.sh && \
@@ -20,12 +22,26 @@ RUN [ -x /opt/venv/bin/python ] || python3 -m venv /opt/venv
 WORKDIR /app
 COPY pyproject.toml README.md ./
 COPY fxswarm ./fxswarm
-RUN pip install --quiet --no-cache-dir . && rm -rf build fxswarm.egg-info
+# The roles live at the top level, installed as fxswarm.<role> (pyproject.toml package-dir).
+COPY agents ./agents
+COPY leader ./leader
+COPY world ./world
+COPY logger ./logger
+RUN pip install --quiet --no-cache-dir ".[logger]" && rm -rf build fxswarm.egg-info agents leader world logger
 COPY configs ./configs
 COPY docker/entrypoint.sh /usr/local/bin/fxswarm-entrypoint
 
+# Every role runs as an unprivileged user (uid/gid 10001, no login, no home of its own): a
+# process broken into gets no root in its container. A mounted ./runs must be writable by it,
+# and in secure mode the key files (compose secrets, mode 0600) readable: chown them to
+# 10001, or run as their owner (compose: FXSWARM_UID/FXSWARM_GID; docs/security.md).
+RUN groupadd --system --gid 10001 fxswarm \
+ && useradd --system --uid 10001 --gid 10001 --home-dir /app --no-create-home --shell /usr/sbin/nologin fxswarm \
+ && mkdir -p /app/runs && chown 10001:10001 /app/runs
+USER 10001:10001
+
 # Runs (summary.json, trajectory.npz, recording.rrd) go to /app/runs: mount a folder there.
 VOLUME ["/app/runs"]
-# `fxswarm "$@"`, with the fault specs of $FXSWARM_FAULTS added to role commands.
+# `fxswarm "$@"` (faults arrive resolved, in FXSWARM_FAULT_PLAN: see docs/fault-plan.md).
 ENTRYPOINT ["fxswarm-entrypoint"]
 CMD ["--help"]

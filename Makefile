@@ -4,11 +4,11 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-fast bench clean
+.PHONY: run test test-unit test-integration test-docker lint bench clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet --upgrade pip "setuptools>=77" wheel
 	$(PY) -m pip install --quiet -e ".[dev]"
 	touch $(STAMP)
 
@@ -16,14 +16,29 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(VENV)/bin/fxswarm run configs/paper-fast.toml --clock lockstep --out runs/paper-fast
 
-test: $(STAMP)
+# Layers (pyproject.toml [tool.importlinter]) are checked on the installed layout, where
+# agents/ is fxswarm/agents: import-linter reads folders, not setuptools' package-dir.
+lint: $(STAMP)
+	rm -rf build/lint
+	$(PY) -m pip install --quiet --no-deps --no-build-isolation --target build/lint .
+	cd build/lint && ../../$(VENV)/bin/lint-imports ../../pyproject.toml
+
+# Every layer (tests/unit, tests/integration, tests/docker: pyproject's testpaths), slow ones too.
+test: lint
 	$(PY) -m pytest
 
-test-fast: $(STAMP)
-	$(PY) -m pytest -m "not slow"
+# The quick layer: pure tests in one process, without the ones marked slow (minutes of simulation).
+test-unit: $(STAMP)
+	$(PY) -m pytest tests/unit -m "not slow"
+
+test-integration: $(STAMP)
+	$(PY) -m pytest tests/integration
+
+test-docker: $(STAMP)
+	$(PY) -m pytest tests/docker
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_sim.py
 
 clean:
-	rm -rf $(VENV) runs .pytest_cache
+	rm -rf $(VENV) runs build dist .pytest_cache

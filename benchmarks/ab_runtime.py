@@ -7,8 +7,10 @@ On a shared machine the load drifts by more than most changes are worth, so
 a change is judged by rounds that alternate baseline and this tree, each
 side run with its own tree's venv and code: lock-step paper-fast (ticks/s
 and CPU ms per tick, from bench_runtime's ``lockstep``) and real time at
-100 Hz (sensing -> command latency, from its ``realtime``). Writes every
-round and the medians. BASELINE_TREE is e.g. ``git worktree add /tmp/base REV``
+100 Hz (sensing -> command latency, from its ``realtime``). Each round also
+runs the floor (bench_floor.py: the same message pattern with nothing else),
+so both trees are read as ratios to a floor measured under the same load.
+Writes every round, the medians and the per-round ratios to the floor. BASELINE_TREE is e.g. ``git worktree add /tmp/base REV``
 with ``make .venv/.installed`` run there.
 """
 
@@ -43,9 +45,41 @@ with tempfile.TemporaryDirectory() as tmp:
         r = b.realtime(cfg, Path(tmp), arg)
         lat = r["sense_to_command"]
         out = {"p50_ms": lat["p50_ms"], "p99_ms": lat["p99_ms"], "max_ms": lat["max_ms"]}
+        out["rss_mb_per_agent"] = r["rss_mb_per_agent"]["max"]
+        if "pss_mb_per_agent" in r:
+            out["pss_mb_per_agent"] = r["pss_mb_per_agent"]["max"]
+    if "crossings_per_tick" in r:
+        out["crossings_per_tick"] = r["crossings_per_tick"]
 out["load_avg"] = r["load_avg"]
 print(json.dumps(out))
 """
+
+
+def measure_floor(kind: str, arg: float) -> dict:
+    """The floor (bench_floor.py, from this tree) for the same measurement."""
+    import bench_floor as f
+
+    cfg = ROOT / "configs" / "paper-fast.toml"
+    if kind == "lockstep":
+        r = f.floor_lockstep(cfg, int(arg))
+        return {"ticks_per_s": r["ticks_per_s"], "cpu_ms_per_tick": r["cpu_ms_per_tick"],
+                "crossings_per_tick": r["crossings_per_tick"], "load_avg": r["load_avg"]}
+    r = f.floor_realtime(cfg, arg)
+    lat = r["sense_to_command"]
+    return {"p50_ms": lat["p50_ms"], "p99_ms": lat["p99_ms"], "max_ms": lat["max_ms"],
+            "crossings_per_tick": r["crossings_per_tick"], "load_avg": r["load_avg"]}
+
+
+def ratios(rounds: dict, tree: str) -> dict:
+    """Per figure: the median and range of tree/floor over the rounds (each round under one load)."""
+    out = {}
+    for k in rounds["floor"][0]:
+        if k == "load_avg" or k not in rounds[tree][0]:
+            continue
+        r = [a[k] / b[k] for a, b in zip(rounds[tree], rounds["floor"]) if b.get(k)]
+        if r:
+            out[k] = {"median": statistics.median(r), "range": [min(r), max(r)]}
+    return out
 
 
 def measure(tree: Path, kind: str, arg: float) -> dict:
@@ -57,7 +91,8 @@ def measure(tree: Path, kind: str, arg: float) -> dict:
 
 
 def medians(rows: list[dict]) -> dict:
-    return {k: statistics.median(r[k] for r in rows) for k in rows[0] if k != "load_avg"} | \
+    return {k: statistics.median(r[k] for r in rows if r.get(k) is not None) for k in rows[0]
+            if k != "load_avg" and any(r.get(k) is not None for r in rows)} | \
         {"load_avg": [round(r["load_avg"], 1) for r in rows]}
 
 
@@ -72,14 +107,19 @@ def main() -> int:
     trees = {"baseline": args.baseline.resolve(), "this": ROOT}
     result: dict = {"trees": {k: str(v) for k, v in trees.items()}}
     for kind, arg in (("lockstep", args.lockstep_ticks), ("realtime", args.realtime_s)):
-        rounds = {name: [] for name in trees}
+        rounds: dict[str, list] = {name: [] for name in [*trees, "floor"]}
         for i in range(args.rounds):
-            for name, tree in trees.items():
+            # A B, then B A: neither tree always runs right after the other's swarm shut down.
+            for name, tree in (list(trees.items()) if i % 2 == 0 else list(trees.items())[::-1]):
                 rounds[name].append(measure(tree, kind, arg))
                 print(kind, i, name, json.dumps(rounds[name][-1]), file=sys.stderr)
-        result[kind] = {"rounds": rounds, "median": {name: medians(rows) for name, rows in rounds.items()}}
+            rounds["floor"].append(measure_floor(kind, arg))
+            print(kind, i, "floor", json.dumps(rounds["floor"][-1]), file=sys.stderr)
+        result[kind] = {"rounds": rounds, "median": {name: medians(rows) for name, rows in rounds.items()},
+                        "vs_floor": {name: ratios(rounds, name) for name in trees}}
     write_json(args.out, result)
-    print(json.dumps({k: result[k]["median"] for k in ("lockstep", "realtime")}, indent=2))
+    print(json.dumps({k: {"median": result[k]["median"], "vs_floor": result[k]["vs_floor"]}
+                      for k in ("lockstep", "realtime")}, indent=2))
     return 0
 
 

@@ -9,10 +9,15 @@ Writes benchmarks/results/discretisation.json with, for both discretisations:
 - ``vs_leader_speed``: the floors at dt = 0.01 for leader climb rates 0.1 to 1 m/s
   (K3 = 1 m/s is the estimator's speed limit);
 
-each beside the lower limit ``hops * dt * |dp0/dt|`` (fxswarm.study.discretisation).
+each beside the lower limit ``hops * dt * |dp0/dt|`` (fxswarm.study.discretisation); and
+
+- ``tracking``: ``[estimator] tracking = "paper"`` against ``"feedforward"`` (docs/estimator.md)
+  for both discretisations on paper.toml, paper-fast.toml (20 s, no obstacles) and
+  line-16.toml (as shipped, 40 s), with each run's final estimate errors.
+
 The cases run in parallel on spawned workers.
 
-    .venv/bin/python benchmarks/bench_discretisation.py [--workers 2] [--quick]
+    .venv/bin/python benchmarks/bench_discretisation.py [--workers 2] [--quick] [--only tracking]
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ from fxswarm.study.parallel import parallel_map
 from bench_io import machine, write_json  # a sibling script
 
 DISCRETISATIONS = ("euler", "semi-implicit")
+TRACKINGS = ("paper", "feedforward")
 DTS = (0.02, 0.01, 0.005, 0.002, 0.001, 0.0005)
 CLIMBS = (0.1, 0.25, 0.5, 0.75, 1.0)
 FLOOR_DURATION_S = 20.0  # every transient is over by ~5 s; the floor is taken over 10-20 s
@@ -51,10 +57,16 @@ EXPLANATION = (
 )
 
 
-def plan(workers_hint: int, quick: bool) -> list[tuple[dict, str, str]]:
-    """All cases ``(raw TOML, source, series)``, longest first."""
+def plan(workers_hint: int, quick: bool, only: tuple[str, ...] | None = None) -> list[tuple[dict, str, str]]:
+    """All cases ``(raw TOML, source, series)``, longest first (``only``: those series alone)."""
     paper, fast = load("configs/paper.toml"), load("configs/paper-fast.toml")
     cases = []
+    line = load("configs/line-16.toml")
+    for sc, duration in ((paper, FLOOR_DURATION_S), (fast, FLOOR_DURATION_S), (line, None)):
+        for disc in DISCRETISATIONS:
+            for tracking in TRACKINGS:
+                cases.append((case_toml(sc.raw, disc, duration=duration, obstacles=False, tracking=tracking),
+                              sc.source, "tracking"))
     for sc in (paper, fast):
         for disc in DISCRETISATIONS:
             duration = 60.0 if quick else None
@@ -66,6 +78,8 @@ def plan(workers_hint: int, quick: bool) -> list[tuple[dict, str, str]]:
         for disc in DISCRETISATIONS:
             cases.append((case_toml(paper.raw, disc, dt=0.01, duration=FLOOR_DURATION_S, climb=climb),
                           paper.source, "vs_leader_speed"))
+    if only:
+        cases = [c for c in cases if c[2] in only]
     cases.sort(key=lambda c: -c[0]["scenario"]["duration"] / c[0]["scenario"]["dt"])
     return cases
 
@@ -97,8 +111,10 @@ def main() -> int:
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--quick", action="store_true", help="fewer, shorter cases (a smoke run)")
     parser.add_argument("--out", default="benchmarks/results/discretisation.json")
+    parser.add_argument("--only", default=None, help="comma-separated series to run (paper, vs_dt, vs_leader_speed, "
+                        "tracking); the others are left out of the JSON")
     args = parser.parse_args()
-    cases = plan(args.workers, args.quick)
+    cases = plan(args.workers, args.quick, tuple(args.only.split(",")) if args.only else None)
     start = time.perf_counter()
 
     def progress(row: dict, done: int, total: int) -> None:
@@ -114,7 +130,8 @@ def main() -> int:
     paper_rows = pick("paper", "source")
     results = {
         "benchmark": "discretisation floors: explicit Euler vs semi-implicit (issue 7)",
-        "command": "python benchmarks/bench_discretisation.py" + (" --quick" if args.quick else ""),
+        "command": "python benchmarks/bench_discretisation.py" + (" --quick" if args.quick else "")
+                   + (f" --only {args.only}" if args.only else ""),
         "machine": machine(),
         "floor_definition": "worst robot's error over the second half of the run (m)",
         "limit_definition": "hops * dt * max|dp0/dt|, hops = max graph distance to a pinned robot + 1",
@@ -123,6 +140,8 @@ def main() -> int:
         "paper": paper_rows,
         "vs_dt": pick("vs_dt", "dt"),
         "vs_leader_speed": pick("vs_leader_speed", "leader_speed_mps"),
+        "tracking": sorted((r for r in rows if r["series"] == "tracking"),
+                           key=lambda r: (r["source"], key[r["discretisation"]], r["tracking"])),
         "wall_s": time.perf_counter() - start,
     }
     write_json(args.out, results)

@@ -43,7 +43,7 @@ SEED = 7
 def one_point(args: tuple[str, float, float]) -> dict:
     from fxswarm.core.metrics import formation_errors, settle_time
     from fxswarm.core.scenario import parse
-    from fxswarm.runtime.sim import Simulation
+    from fxswarm.launch.sim import Simulation
 
     compensation, drop, delay = args
     data = tomllib.loads(BASE.read_text())

@@ -40,7 +40,7 @@ def in_process(duration: float, repeats: int, rate_hz: float) -> dict:
     from fxswarm.core.scenario import load
     from fxswarm.logger.recorder import RecorderOptions, SwarmRecorder, attach
     from fxswarm.logger.sinks import Outputs, open_recording
-    from fxswarm.runtime.sim import Simulation
+    from fxswarm.launch.sim import Simulation
 
     sc = dataclasses.replace(load(CONFIG), duration=duration)
     walls: dict[str, list[float]] = {"without": [], "with": []}
@@ -76,7 +76,7 @@ def in_process(duration: float, repeats: int, rate_hz: float) -> dict:
 
 def multi_process(duration: float, repeats: int) -> dict:
     from fxswarm.testing import scenario_with
-    from fxswarm.runtime.launcher import Swarm
+    from fxswarm.launch.launcher import Swarm
 
     walls: dict[str, list[float]] = {"without": [], "with": []}
     logger_counters = []

@@ -12,13 +12,18 @@ Measures, and writes as JSON:
 - ``realtime``: latency from the world's sensing message to the matching
   command arriving back at the world, p50/p99/max, at 100 Hz (speed 1,
   dt = 0.01 s) with 6 and 24 agents;
-- ``rss_mb``: resident memory of each agent process, sampled mid-run.
+- ``rss_mb``: resident memory of each agent process, sampled mid-run;
+- against the floor (benchmarks/bench_floor.py: the same message pattern over
+  Zenoh from Python with nothing else): every lock-step and real-time run is
+  paired with a floor run right after it (A B A B), and ``vs_floor`` gives
+  per figure the medians and the median of the per-pair ratios runtime/floor,
+  with message crossings per tick (sent + received, all processes).
 
 Targets (issue 3, this 2-core machine): >= 500 lock-step ticks/s with 6
 agents, p99 < 5 ms with 6 agents, < 80 MB per agent. The machine is shared:
 the load average at each measurement is recorded beside it. One run of a
 swarm swings by 20 % with the load, so each lock-step and real-time figure
-is the median of ``--repeat`` runs (default 3, the scenarios interleaved):
+is the median of ``--repeat`` runs (default 3, the scenarios and the floor interleaved):
 the entry is the median run, its ``runs`` the headline figures of every
 run, and ``targets_met`` compares the medians with the targets.
 """
@@ -28,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -39,15 +45,16 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from fxswarm.runtime.launcher import Swarm, free_port, topology_options  # noqa: E402
+from fxswarm.launch.launcher import Swarm, free_port, topology_options  # noqa: E402
 from fxswarm.runtime.zenoh_bus import TOPOLOGIES  # noqa: E402
 from fxswarm.testing import scenario_with  # noqa: E402
 
+from bench_floor import floor_lockstep, floor_realtime  # noqa: E402  (a sibling script)
 from bench_io import machine, write_json  # noqa: E402  (a sibling script)
 
 PONG = r"""
 import sys, threading, zenoh
-from fxswarm.runtime.launcher import topology_options
+from fxswarm.launch.launcher import topology_options
 conf = topology_options(sys.argv[2], sys.argv[1]).config()
 s = zenoh.open(conf)
 pub = s.declare_publisher("bench/pong", congestion_control=zenoh.CongestionControl.BLOCK,
@@ -126,6 +133,18 @@ def rss_mb(pid: int) -> float | None:
     return None
 
 
+def pss_mb(pid: int) -> float | None:
+    """Proportional set size, MB: resident memory with each shared page (the Zenoh and numpy
+    libraries every agent maps) divided among the processes sharing it: what one more agent costs."""
+    try:
+        for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
+            if line.startswith("Pss:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        return None
+    return None
+
+
 def cpu_s(pid: int) -> float | None:
     """CPU time (user + system, all threads) a live process has used so far, s."""
     try:
@@ -136,16 +155,17 @@ def cpu_s(pid: int) -> float | None:
 
 
 def run_swarm(config: Path, out: Path, clock: str, speed: float = 1.0, rss_at: float | None = None,
-              topology: str | None = None) -> dict:
+              topology: str | None = None, start_timeout: float = 120) -> dict:
     """Run a scenario as processes (no logger); return the world's counters, agents' RSS and
     each process's CPU time while the world ran (sampled every 0.2 s: the last sample before
     the world ends, less the one when it started)."""
     swarm = Swarm(str(config), out, clock=clock, speed=speed, logger=False, topology=topology)
     rss: dict[str, float] = {}  # the largest resident size seen per agent, sampled about once a second
+    pss: dict[str, float] = {}  # the same, proportional (shared pages divided among their sharers)
     cpu_start: dict[str, float] = {}
     cpu_last: dict[str, float] = {}
     try:
-        swarm.start(timeout=120)
+        swarm.start(timeout=start_timeout)
         world = swarm.children["world"]
         sampled = cpu_sampled = 0.0
         for c in swarm.children.values():
@@ -163,6 +183,8 @@ def run_swarm(config: Path, out: Path, clock: str, speed: float = 1.0, rss_at: f
                 for c in swarm.children.values():
                     if c.role == "agent" and (mb := rss_mb(c.pid)) is not None:
                         rss[c.name] = max(mb, rss.get(c.name, 0.0))
+                    if c.role == "agent" and (mb := pss_mb(c.pid)) is not None:
+                        pss[c.name] = max(mb, pss.get(c.name, 0.0))
         swarm.stop(grace=3.0)
         summary = swarm.merge_summary()
     finally:
@@ -170,7 +192,7 @@ def run_swarm(config: Path, out: Path, clock: str, speed: float = 1.0, rss_at: f
     if summary is None or not summary.get("complete"):
         raise RuntimeError(f"run in {out} did not complete; see {out}/logs")
     cpu = {name: round(cpu_last[name] - cpu_start.get(name, 0.0), 3) for name in cpu_last}
-    return {"world": summary["processes"]["world-0"], "summary": summary, "rss": rss, "cpu_s": cpu,
+    return {"world": summary["processes"]["world-0"], "summary": summary, "rss": rss, "pss": pss, "cpu_s": cpu,
             "topology": swarm.topology}
 
 
@@ -185,13 +207,19 @@ def cpu_per_tick_ms(cpu: dict[str, float], ticks: int) -> dict:
     return out
 
 
+def crossings_per_tick(summary: dict, ticks: int) -> float:
+    """Message crossings per tick: every put and every delivery, summed over all processes."""
+    total = sum(c.get("sent", 0) + c.get("received", 0) for c in summary["processes"].values())
+    return round(total / max(ticks, 1), 2)
+
+
 def lockstep(config: Path, folder: Path, ticks: int, topology: str | None = None) -> dict:
     short = scenario_with(config, folder, duration=ticks * 0.01)
     r = run_swarm(short, folder / f"lockstep-{config.stem}", "lockstep", topology=topology)
     w = r["world"]
     return {"scenario": config.name, "agents": r["summary"]["robots"], "topology": r["topology"],
             "ticks": w["ticks"], "wall_s": w["wall_s"], "ticks_per_s": w["ticks_per_s"],
-            "missed_ticks": w["missed_ticks"],
+            "missed_ticks": w["missed_ticks"], "crossings_per_tick": crossings_per_tick(r["summary"], w["ticks"]),
             "cpu_ms_per_tick": cpu_per_tick_ms(r["cpu_s"], w["ticks"]), "load_avg": load()}
 
 
@@ -205,8 +233,11 @@ def realtime(config: Path, folder: Path, duration: float, topology: str | None =
             "duration_s": duration,
             "sense_to_command": s["sense_to_command"], "late_ticks": s["late_ticks"], "held_ticks": s["held_ticks"],
             "achieved_speed": s["achieved_speed"],
+            "crossings_per_tick": crossings_per_tick(s, s["processes"]["world-0"]["ticks"]),
             "stale": {k: v["stale"] for k, v in s["processes"].items()},
             "rss_mb_per_agent": {"max": max(rss) if rss else None, "mean": float(np.mean(rss)) if rss else None},
+            "pss_mb_per_agent": {"max": max(r["pss"].values()) if r["pss"] else None,
+                                 "mean": float(np.mean(list(r["pss"].values()))) if r["pss"] else None},
             "load_avg": load()}
 
 
@@ -223,16 +254,36 @@ def headline(run: dict) -> dict:
                 "load_avg": round(run["load_avg"], 2)}
     lat = run["sense_to_command"]
     return {"p50_ms": round(lat["p50_ms"], 3), "p99_ms": round(lat["p99_ms"], 3), "max_ms": round(lat["max_ms"], 3),
-            "rss_mb_per_agent_max": run["rss_mb_per_agent"]["max"], "load_avg": round(run["load_avg"], 2)}
+            "rss_mb_per_agent_max": run["rss_mb_per_agent"]["max"],
+            "pss_mb_per_agent_max": run.get("pss_mb_per_agent", {}).get("max"), "load_avg": round(run["load_avg"], 2)}
 
 
-def repeated(measure, configs: list[Path], n: int, key) -> list[dict]:
-    """``measure(config)`` ``n`` times per config, the configs interleaved; the median run of each."""
-    runs: dict[Path, list[dict]] = {c: [] for c in configs}
+def against_floor(measure, floor, configs: list[Path], n: int, key, figures) -> list[dict]:
+    """Runtime (A) and floor (B) interleaved, A B A B, ``n`` pairs per config: the median runtime
+    run, the floor's runs, and per figure the medians and the median of the per-pair ratios
+    runtime/floor (a pair ran back to back, so under the same load)."""
+    out = []
+    pairs: dict[Path, list[tuple[dict, dict]]] = {c: [] for c in configs}
     for _ in range(n):
         for c in configs:
-            runs[c].append(measure(c))
-    return [median_run(runs[c], key) for c in configs]
+            a = measure(c)
+            b = floor(c)
+            pairs[c].append((a, b))
+            print("pair", c.name, json.dumps({f: [get(a), get(b)] for f, get in figures.items()}), file=sys.stderr)
+    for c in configs:
+        entry = median_run([a for a, _ in pairs[c]], key)
+        entry["floor"] = {"runs": [b for _, b in pairs[c]]}
+        ratios = {}
+        for f, get in figures.items():
+            rt = [get(a) for a, _ in pairs[c]]
+            fl = [get(b) for _, b in pairs[c]]
+            r = [x / y for x, y in zip(rt, fl) if y]
+            ratios[f] = {"runtime_median": statistics.median(rt), "floor_median": statistics.median(fl),
+                         "ratio_median": statistics.median(r) if r else None,
+                         "ratio_range": [min(r), max(r)] if r else None}
+        entry["vs_floor"] = ratios
+        out.append(entry)
+    return out
 
 
 def targets_met(result: dict, targets: dict) -> dict:
@@ -264,6 +315,8 @@ def main() -> int:
     p.add_argument("--only", choices=("pingpong", "lockstep", "realtime"), action="append")
     p.add_argument("--topology", choices=TOPOLOGIES, default="auto",
                    help="of the swarms (default: what `fxswarm run` picks, mesh for 6 robots, routed for 24)")
+    p.add_argument("--config", action="append", default=None, metavar="TOML",
+                   help="scenario to measure (repeatable; default: paper-fast and large)")
     args = p.parse_args()
     only = set(args.only or ("pingpong", "lockstep", "realtime"))
     ticks = 300 if args.quick else 2000
@@ -273,19 +326,28 @@ def main() -> int:
         p.error(f"--repeat: expected at least 1 run, got {repeat}")
     targets = {"lockstep_ticks_per_s_6": 500, "realtime_p99_ms_6": 5.0, "rss_mb_per_agent": 80}
     result: dict = {"machine": machine(), "targets": targets}
-    configs = [ROOT / "configs" / "paper-fast.toml", ROOT / "configs" / "large.toml"]
+    configs = [Path(c).resolve() for c in args.config] if args.config else [
+        ROOT / "configs" / "paper-fast.toml", ROOT / "configs" / "large.toml"]
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         if "pingpong" in only:
             result["pingpong"] = [pingpong(500 if args.quick else 3000, t) for t in ("mesh", "routed")]
             print("pingpong", json.dumps(result["pingpong"]), file=sys.stderr)
         if "lockstep" in only:
-            result["lockstep"] = repeated(lambda c: lockstep(c, folder, ticks, args.topology), configs, repeat,
-                                          key=lambda r: r["ticks_per_s"])
+            result["lockstep"] = against_floor(
+                lambda c: lockstep(c, folder, ticks, args.topology),
+                lambda c: floor_lockstep(c, ticks, args.topology), configs, repeat, key=lambda r: r["ticks_per_s"],
+                figures={"ticks_per_s": lambda r: r["ticks_per_s"],
+                         "crossings_per_tick": lambda r: r["crossings_per_tick"]})
             print("lockstep", json.dumps(result["lockstep"]), file=sys.stderr)
         if "realtime" in only:
-            result["realtime"] = repeated(lambda c: realtime(c, folder, rt_duration, args.topology), configs,
-                                          repeat, key=lambda r: -r["sense_to_command"]["p99_ms"])
+            result["realtime"] = against_floor(
+                lambda c: realtime(c, folder, rt_duration, args.topology),
+                lambda c: floor_realtime(c, rt_duration, args.topology), configs, repeat,
+                key=lambda r: -r["sense_to_command"]["p99_ms"],
+                figures={"p50_ms": lambda r: r["sense_to_command"]["p50_ms"],
+                         "p99_ms": lambda r: r["sense_to_command"]["p99_ms"],
+                         "crossings_per_tick": lambda r: r["crossings_per_tick"]})
             print("realtime", json.dumps(result["realtime"]), file=sys.stderr)
     result["targets_met"] = targets_met(result, targets)
     write_json(args.out, result)

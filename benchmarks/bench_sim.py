@@ -15,7 +15,7 @@ import statistics
 import time
 
 from fxswarm.core.scenario import load
-from fxswarm.runtime.sim import Simulation
+from fxswarm.launch.sim import Simulation
 
 from bench_io import machine, write_json  # a sibling script
 

@@ -228,7 +228,7 @@ def bus_worker(side: str, endpoint: str, n: int, warmup: int, stay: bool) -> Non
 
 
 def measure(mech: str, n: int, warmup: int, runtime: str | None) -> dict:
-    from fxswarm.runtime.launcher import free_port
+    from fxswarm.launch.launcher import free_port
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     env = dict(os.environ)

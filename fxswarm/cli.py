@@ -13,16 +13,20 @@ import importlib.util
 import sys
 
 COMMANDS: dict[str, tuple[str, str]] = {
-    "sim": ("fxswarm.runtime.sim_cli", "run a scenario in one process (lock-step, in-memory bus)"),
-    "run": ("fxswarm.runtime.launcher", "run a scenario as one OS process per role over Zenoh"),
+    "sim": ("fxswarm.launch.sim_cli", "run a scenario in one process (lock-step, in-memory bus)"),
+    "run": ("fxswarm.launch.launcher", "run a scenario as one OS process per role over Zenoh"),
     "world": ("fxswarm.world.process", "the world process"),
     "leader": ("fxswarm.leader.process", "the virtual leader process"),
-    "agent": ("fxswarm.agent.process", "one robot's process"),
+    "agent": ("fxswarm.agents.process", "one robot's process"),
     "logger": ("fxswarm.logger.process", "the Rerun logger process"),
     "router": ("fxswarm.runtime.router", "a Zenoh router (a Python session in router mode)"),
+    "keys": ("fxswarm.security.keys", "a private CA and a certificate + key per process of a scenario (secure mode)"),
     "report": ("fxswarm.report", "PNG figures and index.md from a run folder"),
     "sweep": ("fxswarm.study.sweep", "settling time against initial error, per controller variant"),
-    "compose": ("fxswarm.runtime.compose", "write a docker-compose file for a scenario"),
+    "compose": ("fxswarm.launch.compose", "write a docker-compose file for a scenario"),
+    "stack": ("fxswarm.launch.stack", "write a Docker Swarm stack (stack.yml) for a scenario"),
+    "k8s": ("fxswarm.launch.k8s", "write Kubernetes manifests (kubectl apply -f DIR) for a scenario"),
+    "attach": ("fxswarm.launch.attach", "observe a running swarm through its router; write its run folder here"),
     "health": ("fxswarm.runtime.health", "exit 0 if a process of the swarm is alive (its liveliness token)"),
 }
 

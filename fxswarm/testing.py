@@ -83,19 +83,21 @@ def scenario_with(base: str | Path, folder: str | Path, **overrides: Any) -> Pat
 
 
 class SwarmUnderTest:
-    """A running swarm as a test sees it; wraps :class:`fxswarm.runtime.launcher.Swarm`.
+    """A running swarm as a test sees it; wraps :class:`fxswarm.launch.launcher.Swarm`.
 
     Process names: ``world``, ``leader``, ``router``, ``logger``, ``agent-<id>``.
     """
 
     def __init__(self, config: str | Path, out: str | Path, *, clock: str = "lockstep", speed: float = 1.0,
                  logger: bool = False, tick_timeout: float = 1.0, lease_ms: int | None = None,
-                 topology: str | None = None) -> None:
-        from fxswarm.runtime.launcher import Swarm
+                 topology: str | None = None, secure: str | Path | None = None, audit: bool = False,
+                 world_args: tuple[str, ...] = ()) -> None:
+        from fxswarm.launch.launcher import Swarm
 
         swarm_name = f"test-{os.getpid()}-{next(_counter)}"
         self.swarm = Swarm(str(config), Path(out), clock=clock, speed=speed, swarm=swarm_name, logger=logger,
-                           tick_timeout=tick_timeout, lease_ms=lease_ms, topology=topology)
+                           tick_timeout=tick_timeout, lease_ms=lease_ms, topology=topology,
+                           secure=str(secure) if secure else None, audit=audit, world_args=tuple(world_args))
         self.deaths: list = []  # unplanned deaths seen so far (launcher.Death)
 
     @property
@@ -184,7 +186,7 @@ class SwarmUnderTest:
                 raise TimeoutError(f"the run did not finish within {timeout:g} s (t = {self.sim_time():.2f} s)")
             self.pump(0.1)
         if world.popen.returncode != 0:
-            from fxswarm.runtime.launcher import Death
+            from fxswarm.launch.launcher import Death
 
             raise RuntimeError(Death(world, world.popen.returncode).describe())
         self.swarm.stop(grace=3.0)
@@ -203,7 +205,7 @@ class SwarmUnderTest:
 
         from fxswarm.core.scenario import load
         from fxswarm.runtime.output import load_trajectory
-        from fxswarm.runtime.sim import Simulation
+        from fxswarm.launch.sim import Simulation
 
         sim = Simulation(load(self.swarm.config))
         summary = sim.run()
@@ -220,7 +222,7 @@ class SwarmUnderTest:
 
 @pytest.fixture
 def launch_swarm(tmp_path):
-    """``launch_swarm(config, clock=..., speed=..., logger=False, topology=None, **scenario_overrides)``
+    """``launch_swarm(config, clock=..., speed=..., logger=False, topology=None, secure=None, **scenario_overrides)``
     -> a started swarm.
 
     Overrides are ``[scenario]`` keys (``duration=5.0``) or ``"table.key"``.
@@ -230,11 +232,13 @@ def launch_swarm(tmp_path):
 
     def launch(config: str | Path = "configs/paper-fast.toml", *, clock: str = "lockstep", speed: float = 1.0,
                logger: bool = False, tick_timeout: float = 1.0, lease_ms: int | None = None, start: bool = True,
-               topology: str | None = None, **overrides: Any) -> SwarmUnderTest:
+               topology: str | None = None, secure: str | Path | None = None, audit: bool = False,
+               world_args: tuple[str, ...] = (), **overrides: Any) -> SwarmUnderTest:
         k = len(made) + 1
         path = scenario_with(config, tmp_path, **overrides) if overrides else Path(config)
         s = SwarmUnderTest(path, tmp_path / f"run-{k}", clock=clock, speed=speed, logger=logger,
-                           tick_timeout=tick_timeout, lease_ms=lease_ms, topology=topology)
+                           tick_timeout=tick_timeout, lease_ms=lease_ms, topology=topology, secure=secure,
+                           audit=audit, world_args=world_args)
         made.append(s)
         if start:
             s.start()

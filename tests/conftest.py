@@ -1,11 +1,15 @@
-"""Fixtures the tests share (the project's own harness, ``fxswarm.testing``, is a plugin)."""
+"""Fixtures the test layers share (helpers are in ``support.py``; the project's own harness,
+``fxswarm.testing``, is a pytest plugin giving ``launch_swarm``)."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 
-from fxswarm.runtime.launcher import free_port
+from fxswarm.launch.launcher import free_port
 from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions
+from support import PAPER_FAST, RECORDED_S, record_in_process
 
 
 @pytest.fixture
@@ -30,3 +34,39 @@ def zenoh_client(router):
     yield open_client
     for bus in opened:
         bus.close()
+
+
+@pytest.fixture(scope="module")
+def scenario():
+    """paper-fast cut to :data:`RECORDED_S` seconds (a ``Scenario``)."""
+    from fxswarm.core.scenario import load
+
+    return dataclasses.replace(load(PAPER_FAST), duration=RECORDED_S)
+
+
+@pytest.fixture(scope="module")
+def live_run(scenario, tmp_path_factory):
+    """A lock-step simulation with the recorder on its bus; returns (rrd path, trajectory, recorder)."""
+    from fxswarm.logger.recorder import RecorderOptions
+    from fxswarm.runtime.output import write_run
+
+    folder = tmp_path_factory.mktemp("live")
+    rrd = folder / "recording.rrd"
+    sim, summary, recorder = record_in_process(scenario, rrd, "test-live",
+                                               RecorderOptions(rate_hz=20.0, velocities=True))
+    write_run(folder, summary, sim.trajectory())
+    return rrd, sim.trajectory(), recorder
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    """A 12 s paper-fast run (long enough to reach the first obstacle), written like `fxswarm sim`."""
+    from fxswarm.core.scenario import load
+    from fxswarm.launch.sim import Simulation
+    from fxswarm.runtime.output import write_run
+
+    sc = dataclasses.replace(load(PAPER_FAST), duration=12.0, source=str(PAPER_FAST))
+    sim = Simulation(sc)
+    folder = tmp_path_factory.mktemp("run")
+    write_run(folder, sim.run(), sim.trajectory())
+    return folder

@@ -28,6 +28,8 @@ LEADER_STATE = "leader/state"
 #: never on a crash: the others tell "the run is over" from "the world is lost" (a network cut
 #: longer than the Zenoh lease, a frozen or killed world) by it.
 RUN_OVER = "run/over"
+#: The scenario file's text, answered by the router (``fxswarm router --scenario``) to observers.
+SCENARIO = "scenario"
 
 
 def sense_topic(robot: int) -> str:

@@ -1,4 +1,4 @@
-"""The fixed-time behavioural control law, as pure functions on numpy arrays.
+"""The fixed-time behavioural control law: one robot's step, as pure functions on Python floats.
 
 Equation references are to the LaTeX labels of
 ``shared/paper/fixed-time-behavioral-formation.tex`` (the paper numbers its
@@ -6,16 +6,25 @@ equations by those labels' order): (11) the estimator, (v1) the avoidance
 behaviour, (v2) the formation behaviour, (v) the null-space merge.
 Where SPEC.md settles a point the paper leaves open, the docstring says so.
 
-All vectors are in R^3 (shape ``(3,)``); distances in metres, times in
-seconds. No I/O, no clocks, no globals.
+3-vectors are sequences of three floats ``[x, y, z]`` (lists or tuples; m,
+m/s); the functions return lists. Plain floats, not numpy: on 3-vectors each
+numpy call costs ~1 us, more than the arithmetic itself, and this is the
+agent's per-tick hot path. Sums run left to right in a fixed order, so a
+trajectory does not depend on the machine's BLAS (docs/design.md
+"Bit for bit: the law stays out of BLAS").
+No I/O, no clocks, no globals. :func:`robot_control` is the law; the other
+functions are its parts. ``tests/oracle.py`` holds a plain numpy transcription
+of the same equations that the tests check this one against.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
-import numpy as np
+Vec = Sequence[float]
 
 #: Below this norm a behaviour's Jacobian pseudo-inverse is undefined and the
 #: guards of SPEC sections 3-4 take over.
@@ -24,23 +33,7 @@ EPS = 1e-9
 #: The fixed direction the avoidance behaviour pushes along when a robot sits
 #: exactly on the object it avoids (SPEC section 4 guard): straight up, since
 #: the paper's swarm climbs and up is away from the ground plane.
-COINCIDENT_PUSH_DIRECTION = np.array([0.0, 0.0, 1.0])
-
-
-def dot3(a, b) -> float:
-    """``a . b`` of two 3-vectors in plain float arithmetic, summed left to right.
-
-    Not ``a @ b``: numpy hands that to BLAS (ddot), whose kernel OpenBLAS picks per CPU or
-    from ``OPENBLAS_CORETYPE``, and the kernels round differently. A trajectory would then
-    depend on the machine's BLAS: a container (which does not inherit the variable) parted
-    from ``fxswarm sim`` on the host by 1e-15 m at the first avoidance (docs/DESIGN.md).
-    """
-    return float(a[0]) * float(b[0]) + float(a[1]) * float(b[1]) + float(a[2]) * float(b[2])
-
-
-def sig(x: np.ndarray | float, a: float) -> np.ndarray | float:
-    """``|x|^a * sign(x)`` element by element (the paper's ``x^[a]``)."""
-    return np.sign(x) * np.abs(x) ** a
+COINCIDENT_PUSH_DIRECTION = (0.0, 0.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -72,14 +65,37 @@ class EstimatorGains:
     r6: float
     power: str = "pairwise"  # "pairwise" (eq. (11) as printed) or "aggregate" (its proof)
 
-    @property
-    def exponents(self) -> np.ndarray:
-        """``[r3/r4, r5/r6]`` shaped (2, 1, 1) to raise a (m, 3) array to both powers at once."""
-        cached = self.__dict__.get("_exponents")
-        if cached is None:
-            cached = np.array([[[self.r3 / self.r4]], [[self.r5 / self.r6]]])
-            object.__setattr__(self, "_exponents", cached)
-        return cached
+
+@dataclass(frozen=True)
+class ControlParameters:
+    """Everything the law needs besides the robot's local data: one per scenario.
+
+    ``d``: radius of the repulsive zone, m; ``v_max``: optional speed limit, m/s
+    (not in the paper; None: off); ``semi_implicit``: the scenario's
+    ``[controller] discretisation = "semi-implicit"`` (False: explicit Euler, SPEC section 7).
+    """
+
+    formation: BehaviourGains
+    avoidance: BehaviourGains
+    estimator: EstimatorGains
+    d: float
+    v_max: float | None = None
+    semi_implicit: bool = False
+
+
+class ControlOutput(NamedTuple):
+    """One robot's control step: the command and what it is made of (vectors as lists)."""
+
+    v: list[float]  # merged (and possibly limited) velocity command, m/s
+    dph: list[float]  # the estimate's rate over the step, m/s: ph(k+1) = ph(k) + dt * dph
+    e: list[float]  # formation error against the robot's own estimate, m
+    avoid_active: bool
+    speed_limited: bool
+
+
+def dot3(a: Vec, b: Vec) -> float:
+    """``a . b`` of two 3-vectors, summed left to right."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
 def task_rate(x: float, g: BehaviourGains) -> float:
@@ -92,33 +108,97 @@ def task_rate(x: float, g: BehaviourGains) -> float:
     return g.lam * (g.b1 * x**g.r1 + g.b2 * x**g.r2) ** g.r0
 
 
-def estimator_rate(
-    ph_i: np.ndarray,
-    neighbours: np.ndarray,
-    weights: np.ndarray,
-    gains: EstimatorGains,
-) -> np.ndarray:
-    """``dph_i/dt`` of the fixed-time estimator, paper eq. (11).
+def robot_control(
+    p: Vec,
+    ph: Vec,
+    rows: Sequence[Vec],
+    ws: Sequence[float],
+    p0: Vec,
+    dp0: Vec,
+    po: Vec | None,
+    vo: Vec | None,
+    law: ControlParameters,
+    dt: float,
+    dph: Vec | None = None,
+    feedforward: Vec | None = None,
+) -> ControlOutput:
+    """One robot's whole law from local data only: eqs. (11), (v2), (v1), (v).
 
-    ph_i: this robot's estimate of the leader, shape (3,).
-    neighbours: the estimates it holds of its neighbours, shape (m, 3); the
-        leader, when heard, is one more row with ``ph_0 := p0``.
-    weights: ``a_ij`` (or ``b_i`` for the leader row), shape (m,).
+    p: the robot's position, m. ph: its estimate of the leader, m.
+    rows: the estimates it holds, shape (m, 3) (the leader's position as one more
+    row when pinned and heard), with their weights ``ws`` (``a_ij``, ``b_i``), (m,).
+    p0, dp0: its formation offset and the offset's rate (m, m/s).
+    po, vo: the nearest object's position and velocity (None when it senses
+    nothing); the avoidance task is on only inside the repulsive zone of radius
+    ``law.d`` (SPEC section 4). dt: the step, s (used by the semi-implicit step).
+    dph: the estimate's rate if already known (extrapolating: it hears nobody);
+    None: from eq. (11).
+    feedforward: the observed leader velocity ``vh`` (m/s; ``[estimator] tracking =
+    "feedforward"``, fxswarm.core.observer), added to the eq. (11) rate the law computes:
+    eq. (11ff). A given ``dph`` is the whole rate and gets nothing added. Under explicit
+    Euler the formation behaviour then follows ``vh`` instead of that rate, eq. (v2ff):
+    eq. (11)'s part of the rate is a consensus correction that, once the estimate has
+    settled, is only the sign term's +-K3 per-axis chatter (docs/estimator.md).
+
+    Explicit Euler (SPEC section 7): ``dph`` is eq. (11)'s rate and ``v`` eq. (v2) (with
+    feedforward: eqs. (11ff) and (v2ff)).
+    Semi-implicit: the estimator and the formation behaviour take the semi-implicit
+    step (:func:`estimator_step_semi_implicit`, :func:`formation_velocity_semi_implicit`);
+    ``dph`` is the step's mean rate, so that ``ph + dt*dph`` is the implicit solution.
+    """
+    reference = None  # with feedforward under explicit Euler: the velocity eq. (v2ff) follows
+    if dph is None:
+        if law.semi_implicit:
+            start, held = ph, rows
+            if feedforward is not None:  # eq. (11ff): eq. (11)'s implicit step in the frame moving at vh,
+                # neighbours held in that frame (else the step snaps to their tick-k consensus: a tick of lag a hop)
+                shift = [dt * feedforward[0], dt * feedforward[1], dt * feedforward[2]]
+                start = [ph[0] + shift[0], ph[1] + shift[1], ph[2] + shift[2]]
+                held = [[r[0] + shift[0], r[1] + shift[1], r[2] + shift[2]] for r in rows]
+            ph_next = estimator_step_semi_implicit(start, held, ws, law.estimator, dt)
+            dph = [(ph_next[0] - ph[0]) / dt, (ph_next[1] - ph[1]) / dt, (ph_next[2] - ph[2]) / dt]
+        else:
+            dph = estimator_rate(ph, rows, ws, law.estimator)  # eq. (11)
+            if feedforward is not None:  # eq. (11ff)
+                dph = [dph[0] + feedforward[0], dph[1] + feedforward[1], dph[2] + feedforward[2]]
+                reference = feedforward  # eq. (v2ff): the chatter stays out of the robot's velocity
+    e = [p[0] - ph[0] - p0[0], p[1] - ph[1] - p0[1], p[2] - ph[2] - p0[2]]  # eq. (ctbf)
+    if law.semi_implicit:
+        v = formation_velocity_semi_implicit(e, dph, dp0, law.formation, dt)
+    else:
+        v = formation_velocity(e, dph if reference is None else reference, dp0, law.formation)  # eq. (v2), (v2ff)
+    active = False
+    if po is not None:
+        u = [p[0] - po[0], p[1] - po[1], p[2] - po[2]]
+        d = law.d
+        if 0.5 * d * d - 0.5 * dot3(u, u) > 0.0:  # eq. (2): inside the repulsive zone
+            active = True
+            v_io = avoidance_velocity(u, vo if vo is not None else (0.0, 0.0, 0.0), d, law.avoidance)
+            v = merged_velocity(v_io, u, v)  # eq. (v)
+    limited = False
+    v_max = law.v_max
+    if v_max is not None:
+        speed = math.sqrt(dot3(v, v))
+        if speed > v_max:  # not in the paper: scale the command down to the limit
+            v, limited = [v[0] * (v_max / speed), v[1] * (v_max / speed), v[2] * (v_max / speed)], True
+    return ControlOutput(v, list(dph), e, active, limited)
+
+
+def estimator_rate(ph: Vec, rows: Sequence[Vec], ws: Sequence[float], gains: EstimatorGains) -> list[float]:
+    """``dph_i/dt`` of the fixed-time estimator, paper eq. (11), m/s.
+
+    ph: this robot's estimate of the leader. rows: the estimates it holds of its
+    neighbours, shape (m, 3); the leader, when heard, is one more row with
+    ``ph_0 := p0``. ws: ``a_ij`` (or ``b_i`` for the leader row), shape (m,).
     With no neighbour at all (m = 0) the rate is zero.
 
     ``power="pairwise"`` applies ``sig(., r3/r4)`` and ``sig(., r5/r6)`` to each
     difference before summing (eq. (11) as printed); ``"aggregate"`` applies
     them to the weighted sum (the form its proof uses; SPEC section 2).
     """
-    if len(weights) == 0:
-        return np.zeros(3)
-    return np.array(_estimator_rate_floats(ph_i.tolist(), neighbours.tolist(), weights.tolist(), gains))
-
-
-def _estimator_rate_floats(ph: list[float], rows: list[list[float]], ws: list[float], gains: EstimatorGains) -> list[float]:
-    """:func:`estimator_rate` on Python floats (m >= 1): per-axis sums, eq. (11)."""
-    # Python floats on 3-vectors: each numpy call costs ~1 us, more than the arithmetic itself;
-    # the three axes are unrolled (same sums in the same order as a loop over axes).
+    if not len(ws):
+        return [0.0, 0.0, 0.0]
+    # The three axes unrolled: the same sums in the same order as a loop over axes.
     a1, a2 = gains.r3 / gains.r4, gains.r5 / gains.r6
     K1, K2, K3 = gains.K1, gains.K2, gains.K3
     copysign = math.copysign
@@ -152,203 +232,46 @@ def _estimator_rate_floats(ph: list[float], rows: list[list[float]], ws: list[fl
     return out
 
 
-def formation_error(p_i: np.ndarray, ph_i: np.ndarray, p_i0: np.ndarray) -> np.ndarray:
-    """``e_i = p_i - ph_i - p_i0``: the formation task's error vector (eq. (ctbf)), m."""
-    return p_i - ph_i - p_i0
-
-
-def formation_velocity(
-    e_i: np.ndarray,
-    dph_i: np.ndarray,
-    dp_i0: np.ndarray,
-    g: BehaviourGains,
-) -> np.ndarray:
+def formation_velocity(e: Vec, dph: Vec, dp0: Vec, g: BehaviourGains) -> list[float]:
     """The formation behaviour's velocity ``v_if``, paper eq. (v2), m/s.
 
-    With ``J_if = e^T``, ``J_ihat = J_i0 = -e^T`` and ``rho_tilde = -rho``
-    substituted (SPEC section 3), so that ``d rho/dt = -task_rate(rho)``.
-    Guard: for ``|e| < EPS`` the pseudo-inverse is undefined and the robot
-    just follows its reference, ``dph_i + dp_i0``.
+    e: the formation error ``p_i - ph_i - p_i0``, m; dph, dp0: the estimate's and
+    the offset's rates, m/s. With ``J_if = e^T``, ``J_ihat = J_i0 = -e^T`` and
+    ``rho_tilde = -rho`` substituted (SPEC section 3), so that
+    ``d rho/dt = -task_rate(rho)``. Guard: for ``|e| < EPS`` the pseudo-inverse is
+    undefined and the robot just follows its reference, ``dph + dp0``.
     """
-    return np.array(_formation_velocity_floats(e_i.tolist(), dph_i.tolist(), dp_i0.tolist(), g))
-
-
-def _formation_velocity_floats(e: list[float], dph: list[float], dp0: list[float], g: BehaviourGains) -> list[float]:
-    """:func:`formation_velocity` on Python floats (3-vectors: cheaper than numpy calls)."""
     ff = [dph[0] + dp0[0], dph[1] + dp0[1], dph[2] + dp0[2]]
-    e2 = e[0] * e[0] + e[1] * e[1] + e[2] * e[2]
+    e2 = dot3(e, e)
     if e2 < EPS * EPS:
         return ff
-    c = -task_rate(0.5 * e2, g) + (e[0] * ff[0] + e[1] * ff[1] + e[2] * ff[2])
+    c = -task_rate(0.5 * e2, g) + dot3(e, ff)
     return [e[0] / e2 * c, e[1] / e2 * c, e[2] / e2 * c]  # eq. (v2)
 
 
-def avoidance_task(u: np.ndarray, d: float) -> float:
-    """``rt = d^2/2 - |u|^2/2``, the avoidance task error (eq. (2)); active iff positive."""
-    return 0.5 * d * d - 0.5 * dot3(u, u)
-
-
-def avoidance_velocity(u: np.ndarray, vo: np.ndarray, d: float, g: BehaviourGains) -> np.ndarray:
+def avoidance_velocity(u: Vec, vo: Vec, d: float, g: BehaviourGains) -> list[float]:
     """The avoidance behaviour's velocity ``v_io``, paper eq. (v1), m/s.
 
-    u: ``p_i - po``, from the nearest object to the robot, shape (3,).
-    vo: that object's velocity. Meant for the active case (``rt > 0``), where
-    ``d rt/dt = -task_rate(rt)``. Guard: at ``|u| < EPS`` the direction is
+    u: ``p_i - po``, from the nearest object to the robot, m. vo: that object's
+    velocity, m/s. Meant for the active case (``rt = d^2/2 - |u|^2/2 > 0``, eq. (2)),
+    where ``d rt/dt = -task_rate(rt)``. Guard: at ``|u| < EPS`` the direction is
     undefined; push along :data:`COINCIDENT_PUSH_DIRECTION` at the task rate.
     """
-    rt = avoidance_task(u, d)
     u2 = dot3(u, u)
+    rate = task_rate(0.5 * d * d - 0.5 * u2, g)
     if u2 < EPS * EPS:
-        return COINCIDENT_PUSH_DIRECTION * task_rate(rt, g) / d
-    return u / u2 * (task_rate(rt, g) + dot3(u, vo))  # eq. (v1)
+        return [x * rate / d for x in COINCIDENT_PUSH_DIRECTION]
+    c = rate + dot3(u, vo)
+    return [u[0] / u2 * c, u[1] / u2 * c, u[2] / u2 * c]  # eq. (v1)
 
 
-def merged_velocity(v_io: np.ndarray | None, u: np.ndarray, v_if: np.ndarray) -> np.ndarray:
-    """Null-space merge, paper eq. (v): ``v_io + (I - u u^T/|u|^2) v_if``.
-
-    ``v_io is None`` means the avoidance task is inactive: the formation
-    velocity passes unchanged.
-    """
-    if v_io is None:
-        return v_if
-    u2 = dot3(u, u)
-    if u2 < EPS * EPS:
-        u = COINCIDENT_PUSH_DIRECTION
-        u2 = 1.0
-    return v_io + v_if - u * (dot3(u, v_if) / u2)  # eq. (v)
-
-
-def null_space_projector(u: np.ndarray) -> np.ndarray:
-    """``I - u u^T / |u|^2``, shape (3, 3): the projector eq. (v) applies to ``v_if``."""
+def merged_velocity(v_io: Vec, u: Vec, v_if: Vec) -> list[float]:
+    """Null-space merge, paper eq. (v): ``v_io + (I - u u^T/|u|^2) v_if``, m/s."""
     u2 = dot3(u, u)
     if u2 < EPS * EPS:
         u, u2 = COINCIDENT_PUSH_DIRECTION, 1.0
-    return np.eye(3) - np.outer(u, u) / u2
-
-
-def limit_speed(v: np.ndarray, v_max: float | None) -> tuple[np.ndarray, bool]:
-    """Clip ``|v|`` to ``v_max`` (not in the paper; off when ``v_max`` is None).
-
-    Returns the velocity and whether the limit bit.
-    """
-    if v_max is None:
-        return v, False
-    speed = math.sqrt(dot3(v, v))
-    if speed <= v_max:
-        return v, False
-    return v * (v_max / speed), True
-
-
-@dataclass(frozen=True)
-class ControlOutput:
-    """One robot's control step: the command and what it is made of."""
-
-    v: np.ndarray  # merged (and possibly limited) velocity command, m/s
-    dph: np.ndarray  # estimator rate, m/s
-    e: np.ndarray  # formation error against the robot's own estimate, m
-    avoid_active: bool
-    speed_limited: bool
-
-
-def robot_control(
-    p_i: np.ndarray,
-    ph_i: np.ndarray,
-    neighbours: np.ndarray,
-    weights: np.ndarray,
-    p_i0: np.ndarray,
-    dp_i0: np.ndarray,
-    po: np.ndarray | None,
-    vo: np.ndarray | None,
-    d: float,
-    formation: BehaviourGains,
-    avoidance: BehaviourGains,
-    estimator: EstimatorGains,
-    v_max: float | None = None,
-    dph: np.ndarray | None = None,
-    semi_implicit_dt: float | None = None,
-) -> ControlOutput:
-    """One robot's whole law from local data only: eqs. (11), (v2), (v1), (v).
-
-    ``po``/``vo`` are the nearest object's position and velocity (None when
-    the robot senses nothing). The avoidance task is switched on only inside
-    the repulsive zone of radius ``d`` (SPEC section 4).
-    ``semi_implicit_dt`` (the control period, s; scenario ``discretisation =
-    "semi-implicit"``): the estimator and the formation behaviour take the
-    semi-implicit step (:func:`estimator_step_semi_implicit`,
-    :func:`formation_velocity_semi_implicit`) and ``dph`` is the step's mean rate
-    ``(ph_next - ph_i)/dt``, so that ``ph_i + dt*dph`` is the implicit solution.
-    None (the default): explicit Euler, SPEC section 7.
-    """
-    if semi_implicit_dt is None:
-        v, dph_l, e, active, limited = robot_control_floats(
-            p_i.tolist(), ph_i.tolist(), neighbours.tolist(), weights.tolist(), p_i0.tolist(), dp_i0.tolist(),
-            None if po is None else po.tolist(), None if vo is None else vo.tolist(), d,
-            formation, avoidance, estimator, v_max, None if dph is None else dph.tolist())
-        return ControlOutput(v=np.array(v), dph=np.array(dph_l) if dph is None else dph, e=np.array(e),
-                             avoid_active=active, speed_limited=limited)
-    if dph is None:  # given: the estimate's rate when it is extrapolated (nobody heard)
-        if semi_implicit_dt is None:
-            dph = estimator_rate(ph_i, neighbours, weights, estimator)
-        else:
-            ph_next = estimator_step_semi_implicit(ph_i, neighbours, weights, estimator, semi_implicit_dt)
-            dph = (ph_next - ph_i) / semi_implicit_dt
-    e = formation_error(p_i, ph_i, p_i0)
-    if semi_implicit_dt is None:
-        v_if = formation_velocity(e, dph, dp_i0, formation)
-    else:
-        v_if = formation_velocity_semi_implicit(e, dph, dp_i0, formation, semi_implicit_dt)
-    active = False
-    if po is not None:
-        u = p_i - po
-        if avoidance_task(u, d) > 0.0:
-            active = True
-            v_io = avoidance_velocity(u, vo if vo is not None else np.zeros(3), d, avoidance)
-            v_if = merged_velocity(v_io, u, v_if)
-    v, limited = limit_speed(v_if, v_max)
-    return ControlOutput(v=v, dph=dph, e=e, avoid_active=active, speed_limited=limited)
-
-
-def robot_control_floats(
-    p: list[float],
-    ph: list[float],
-    rows: list[list[float]],
-    ws: list[float],
-    p0: list[float],
-    dp0: list[float],
-    po: list[float] | None,
-    vo: list[float] | None,
-    d: float,
-    formation: BehaviourGains,
-    avoidance: BehaviourGains,
-    estimator: EstimatorGains,
-    v_max: float | None = None,
-    dph: list[float] | None = None,
-) -> tuple[list[float], list[float], list[float], bool, bool]:
-    """:func:`robot_control` with explicit Euler (SPEC section 7) on Python lists: eqs. (11), (v2), (v1), (v).
-
-    3-vectors are ``[x, y, z]`` lists (m, m/s); ``rows`` the (m, 3) estimates held, ``ws`` their
-    weights (m,). Returns ``(v, dph, e, avoid_active, speed_limited)``, vectors as lists.
-    """
-    # Python floats on 3-vectors: each numpy call costs ~1 us, more than the arithmetic itself
-    # (the agent's per-tick hot path, issue 2); the rare avoidance case uses the numpy functions.
-    if dph is None:
-        dph = _estimator_rate_floats(ph, rows, ws, estimator) if ws else [0.0, 0.0, 0.0]
-    e = [p[0] - ph[0] - p0[0], p[1] - ph[1] - p0[1], p[2] - ph[2] - p0[2]]  # eq. (ctbf)
-    v = _formation_velocity_floats(e, dph, dp0, formation)  # eq. (v2)
-    active = False
-    if po is not None:
-        u = [p[0] - po[0], p[1] - po[1], p[2] - po[2]]
-        if 0.5 * d * d - 0.5 * (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]) > 0.0:  # eq. (2): in the zone
-            active = True
-            u_arr = np.array(u)
-            v_io = avoidance_velocity(u_arr, np.array(vo) if vo is not None else np.zeros(3), d, avoidance)
-            v = merged_velocity(v_io, u_arr, np.array(v)).tolist()  # eqs. (v1), (v)
-    limited = False
-    if v_max is not None:
-        speed = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-        if speed > v_max:  # as limit_speed
-            v, limited = [x * (v_max / speed) for x in v], True
-    return v, dph, e, active, limited
+    s = dot3(u, v_if) / u2
+    return [v_io[0] + v_if[0] - u[0] * s, v_io[1] + v_if[1] - u[1] * s, v_io[2] + v_if[2] - u[2] * s]  # eq. (v)
 
 
 # --- semi-implicit discretisation (scenario [controller] discretisation = "semi-implicit") ----------
@@ -361,7 +284,7 @@ def robot_control_floats(
 # value rho is the implicit Euler solution of d rho/dt = -task_rate(rho) (SPEC section 3).
 
 
-def _estimator_power_sum(x: float, ys: list[float], ws: list[float], gains: EstimatorGains) -> tuple[float, float]:
+def _estimator_power_sum(x: float, ys: list[float], ws: Sequence[float], gains: EstimatorGains) -> tuple[float, float]:
     """``P(x)`` (the power terms of eq. (11), negated: ``dph = -P - K3 sign(eta3)``) and ``dP/dx``, one axis.
 
     Infinite slopes (a difference exactly 0 raised to a power below 1) come back as ``inf``.
@@ -405,16 +328,13 @@ def _solve_increasing(fn, target: float, lo: float, hi: float, x: float) -> floa
 
 
 def estimator_step_semi_implicit(
-    ph_i: np.ndarray,
-    neighbours: np.ndarray,
-    weights: np.ndarray,
-    gains: EstimatorGains,
-    dt: float,
-) -> np.ndarray:
+    ph: Vec, rows: Sequence[Vec], ws: Sequence[float], gains: EstimatorGains, dt: float
+) -> list[float]:
     """The next estimate ``ph_i(k+1)`` by a local semi-implicit step of eq. (11), m, shape (3,).
 
-    With the neighbours' values ``y_j`` held (those of tick k), each axis solves the
-    implicit Euler equation ``x = x_k + dt * dph(x)`` of eq. (11),
+    Arguments as :func:`estimator_rate`; dt: the step, s. With the neighbours'
+    values ``y_j`` held (those of tick k), each axis solves the implicit Euler
+    equation ``x = x_k + dt * dph(x)`` of eq. (11),
     ``x - x_k + dt P(x) + dt K3 sign(eta3(x)) = 0``, where ``P`` collects the power
     terms (increasing in ``x``, pairwise or aggregate as ``gains.power``) and
     ``eta3(x) = sum_j a_ij (x - y_j)`` vanishes at the consensus ``x* = sum a y / sum a``.
@@ -430,14 +350,13 @@ def estimator_step_semi_implicit(
     cannot overshoot, which removes the sign term's ``K3 dt`` chattering. With no
     neighbour at all (m = 0) the estimate stays.
     """
-    if len(weights) == 0:
-        return np.array(ph_i, dtype=float)
-    ws = [float(w) for w in weights]
+    if not len(ws):
+        return list(ph)
     total = sum(ws)
-    out = np.empty(3)
+    out = []
     for c in range(3):
-        xk = float(ph_i[c])
-        ys = [float(y) for y in neighbours[:, c]]
+        xk = ph[c]
+        ys = [row[c] for row in rows]
         xs = sum(w * y for w, y in zip(ws, ys)) / total
 
         def g(x: float, xk=xk, ys=ys) -> tuple[float, float]:
@@ -447,7 +366,7 @@ def estimator_step_semi_implicit(
         g_star = g(xs)[0]
         jump = dt * gains.K3
         if abs(g_star) <= jump:
-            out[c] = xs
+            out.append(xs)
             continue
         target = jump if g_star > 0.0 else -jump
         width = max(abs(xk - xs), jump, 1e-12 * max(1.0, abs(xs)))
@@ -461,7 +380,7 @@ def estimator_step_semi_implicit(
         lo, hi = (far, xs) if g_star > 0.0 else (xs, far)
         explicit = xk - dt * (_estimator_power_sum(xk, ys, ws, gains)[0] + target / dt)
         start = explicit if lo < explicit < hi else 0.5 * (lo + hi)
-        out[c] = _solve_increasing(g, target, lo, hi, start)
+        out.append(_solve_increasing(g, target, lo, hi, start))
     return out
 
 
@@ -488,30 +407,24 @@ def implicit_task_value(rho: float, g: BehaviourGains, dt: float) -> float:
     return math.exp(_solve_increasing(h, rho, lo, hi, start))
 
 
-def formation_velocity_semi_implicit(
-    e_i: np.ndarray,
-    dph_i: np.ndarray,
-    dp_i0: np.ndarray,
-    g: BehaviourGains,
-    dt: float,
-) -> np.ndarray:
-    """The formation behaviour's velocity for a semi-implicit step of length ``dt``, m/s.
+def formation_velocity_semi_implicit(e: Vec, dph: Vec, dp0: Vec, g: BehaviourGains, dt: float) -> list[float]:
+    """The formation behaviour's velocity for a semi-implicit step of length ``dt`` (s), m/s.
 
-    Chooses ``v`` so that after the world's step ``p += dt v`` (with the estimate moving
-    ``dt dph_i`` and the offset ``dt dp_i0``) the error is ``e_i * sqrt(rho_next/rho)``:
-    same direction, and ``rho_next`` the implicit Euler solution of
-    ``d rho/dt = -task_rate(rho)`` (:func:`implicit_task_value`):
-    ``v = (sqrt(rho_next/rho) - 1) e_i / dt + dph_i + dp_i0``.
-    As ``dt -> 0`` this is eq. (v2) plus ``(I - e e^T/|e|^2)(dph_i + dp_i0)``, the
+    Arguments as :func:`formation_velocity`. Chooses ``v`` so that after the world's
+    step ``p += dt v`` (with the estimate moving ``dt dph`` and the offset ``dt dp0``)
+    the error is ``e * sqrt(rho_next/rho)``: same direction, and ``rho_next`` the
+    implicit Euler solution of ``d rho/dt = -task_rate(rho)`` (:func:`implicit_task_value`):
+    ``v = (sqrt(rho_next/rho) - 1) e / dt + dph + dp0``.
+    As ``dt -> 0`` this is eq. (v2) plus ``(I - e e^T/|e|^2)(dph + dp0)``, the
     reference's motion across ``e``: a null-space term of ``J_if = e^T`` that leaves
     ``d rho/dt`` unchanged in continuous time, but without which a discrete step
     lets the error grow by ``dt |feedforward across e|`` every tick.
     Guard: for ``|e| < EPS`` the robot just follows its reference, as in eq. (v2).
     """
-    feedforward = dph_i + dp_i0
-    e2 = dot3(e_i, e_i)
+    ff = [dph[0] + dp0[0], dph[1] + dp0[1], dph[2] + dp0[2]]
+    e2 = dot3(e, e)
     if e2 < EPS * EPS:
-        return feedforward
+        return ff
     rho = 0.5 * e2
-    shrink = math.sqrt(implicit_task_value(rho, g, dt) / rho)
-    return (shrink - 1.0) / dt * e_i + feedforward
+    c = (math.sqrt(implicit_task_value(rho, g, dt) / rho) - 1.0) / dt
+    return [c * e[0] + ff[0], c * e[1] + ff[1], c * e[2] + ff[2]]

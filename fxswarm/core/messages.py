@@ -15,11 +15,23 @@ pinned), the age in ticks of the estimate held and how many of that
 sender's messages the robot missed; the world gathers them into
 ``WorldState`` per directed link (order: :func:`fxswarm.world.node.directed_links`).
 Schema 2 added these fields.
+
+Optional fields (``[estimator] tracking = "feedforward"``, docs/estimator.md): ``LeaderState.v0``
+(the leader's velocity), ``Estimate.vh`` and ``Command.vh`` (the robot's estimate of it). Left
+out of the wire form when None, so a run without them sends the same bytes as before and the
+schema version stays 2; when present they are checked as every vector is (3 finite numbers).
+
+The estimate rides on the command: a robot's command also carries the estimate it sends its
+neighbours next (``Command.est_tick``, ``est_t``, ``est_ph``, ``est_vh``; all four or none),
+and neighbours read it from ``agent/<j>/cmd`` (:meth:`Command.carried_estimate`). One put per
+robot per tick less; a robot with no command to send yet (its first tick) sends an
+``Estimate`` on the same key.
 """
 
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass, field, fields
 
 import msgpack
@@ -65,6 +77,7 @@ class LeaderState(Message):
     """The virtual leader's position ``p0(t)``."""
 
     p0: np.ndarray  # (3,)
+    v0: np.ndarray | None = None  # (3,) its velocity dp0/dt, m/s; sent only with tracking = "feedforward"
 
 
 @dataclass(frozen=True)
@@ -73,6 +86,7 @@ class Estimate(Message):
 
     robot: int
     ph: np.ndarray  # (3,)
+    vh: np.ndarray | None = None  # (3,) estimate of the leader's velocity, m/s (tracking = "feedforward")
 
 
 @dataclass(frozen=True)
@@ -83,10 +97,26 @@ class Command(Message):
     v: np.ndarray  # (3,) m/s
     ph: np.ndarray  # (3,) estimate the command was computed from
     avoid_active: bool
-    flags: int = 0  # bit set of degraded modes (see fxswarm.agent.node)
+    flags: int = 0  # bit set of degraded modes (see fxswarm.agents.node)
     # Per link into this robot, neighbours in ascending id then the leader if pinned:
     link_age: tuple[int, ...] = ()  # ticks since the tick of the estimate held (none held: since tick -1)
     link_drops: tuple[int, ...] = ()  # that sender's messages missed so far (sequence gaps seen)
+    vh: np.ndarray | None = None  # (3,) leader-velocity estimate used with ph, m/s (tracking = "feedforward")
+    # The estimate this robot sends its neighbours next (the ``Estimate`` it would otherwise put
+    # separately): its tick, time (s), ph (3,) and vh (3,) (vh with tracking = "feedforward").
+    est_tick: int | None = None
+    est_t: float | None = None
+    est_ph: np.ndarray | None = None
+    est_vh: np.ndarray | None = None
+
+    def carried_estimate(self) -> "Estimate | None":
+        """The :class:`Estimate` this command carries (numbered as the command), or None."""
+        if self.est_ph is None or self.est_tick is None or self.est_t is None:
+            return None
+        est = _new(Estimate)
+        est.__dict__.update(role=self.role, sender=self.sender, seq=self.seq, tick=self.est_tick, t=self.est_t,
+                            robot=self.robot, ph=self.est_ph, vh=self.est_vh)
+        return est
 
 
 @dataclass(frozen=True)
@@ -119,11 +149,14 @@ ROLES = ("world", "leader", "agent", "logger", "test")
 # "counts" (L,) non-negative integers as a tuple, "countrow" the same as an int64 array.
 _SHAPES: dict[str, str] = {
     "p": "vec", "po": "vec?", "vo": "vec?", "p0": "vec", "ph": "vec", "v": "vec",
+    "vh": "vec?", "v0": "vec?", "est_ph": "vec?", "est_vh": "vec?", "est_tick": "int?", "est_t": "float?",
     "robot": "int", "avoid_active": "bool", "flags": "int", "link_age": "counts", "link_drops": "counts",
 }
 _STATE_SHAPES = {"p": "mat", "v": "mat", "ph": "mat", "nearest": "row", "avoid": "boolrow", "obstacles": "mat",
                  "link_age": "countrow", "link_drops": "countrow"}
 _MAX_COUNT = 2**53
+#: Fields a payload may leave out (None then); encode leaves them out when None.
+_OPTIONAL = frozenset({"vh", "v0", "est_tick", "est_t", "est_ph", "est_vh"})
 
 
 def encode(msg: Message) -> bytes:
@@ -131,14 +164,29 @@ def encode(msg: Message) -> bytes:
     # Envelope keys must not collide with field names (Command and WorldState have a field "v").
     cls = type(msg)
     out = {"schema": SCHEMA_VERSION, "kind": _KIND_OF[cls]}
+    held = msg.__dict__  # the fields' values, without a getattr each
     for name in _FIELDS[cls]:
-        value = getattr(msg, name)
-        if isinstance(value, np.ndarray):
+        value = held[name]
+        kind = type(value)
+        if value is None:
+            if name in _OPTIONAL:
+                continue  # absent on the wire: "paper" tracking sends the bytes it always did
+        elif kind is float or kind is int or kind is str or kind is bool:
+            pass  # the usual scalars, without an isinstance each
+        elif kind is np.ndarray:
             value = value.tolist()
         elif isinstance(value, np.generic):
             value = value.item()
         out[name] = value
-    return msgpack.packb(out, use_bin_type=True)
+    try:
+        pack = _local.pack
+    except AttributeError:  # this thread's first message
+        pack = _local.pack = msgpack.Packer(use_bin_type=True, autoreset=True).pack
+    return pack(out)
+
+
+# One Packer per thread (a Packer is not thread-safe; packb would build one per message).
+_local = threading.local()
 
 
 def _finite_number(x) -> bool:
@@ -146,7 +194,13 @@ def _finite_number(x) -> bool:
 
 
 def _check(name: str, shape: str, value):
-    if shape == "int":
+    if shape in ("int?", "float?", "vec?") and value is None:
+        return None
+    if shape == "float?":
+        if not _finite_number(value):
+            raise WireError(f"field {name!r}: expected a finite number")
+        return float(value)
+    if shape in ("int", "int?"):
         if not isinstance(value, int) or isinstance(value, bool) or value < 0 or value > 2**53:
             raise WireError(f"field {name!r}: expected a non-negative integer")
         return value
@@ -189,12 +243,91 @@ def _check(name: str, shape: str, value):
     raise AssertionError(shape)
 
 
+# Per kind of the hot path, its fields after the envelope and their shapes, for _decode_fast.
+_FAST: dict[str, tuple[type, tuple[tuple[str, str], ...]]] = {
+    name: (cls, tuple((f, _SHAPES[f]) for f in _FIELDS[cls] if f not in ("role", "sender", "seq", "tick", "t")))
+    for name, cls in KINDS.items() if cls is not WorldState
+}
+_ROLE_SET = frozenset(ROLES)
+_new = object.__new__
+_MISSING = object()
+
+
+def _decode_fast(raw: dict) -> Message | None:
+    """The usual message, checked and built in one pass; None for anything else (then
+    :func:`decode`'s full path decides, and names the error).
+
+    Accepts only what the full path accepts (same bounds, types and shapes), and builds the
+    same message: a frozen dataclass's ``__init__`` sets each field through
+    ``object.__setattr__``, several microseconds per message, so the fields are put in its
+    ``__dict__`` at once (dataclass equality, repr and hashing read the same attributes).
+    """
+    if raw.get("schema") != SCHEMA_VERSION:
+        return None
+    kind = raw.get("kind")
+    spec = _FAST.get(kind) if type(kind) is str else None
+    role = raw.get("role")
+    t, sender, seq, tick = raw.get("t"), raw.get("sender"), raw.get("seq"), raw.get("tick")
+    if (spec is None or type(role) is not str or role not in _ROLE_SET or type(t) is not float
+            or not -MAX_MAGNITUDE <= t <= MAX_MAGNITUDE or type(sender) is not int or type(seq) is not int
+            or type(tick) is not int or not (0 <= sender <= _MAX_COUNT and 0 <= seq <= _MAX_COUNT
+                                             and 0 <= tick <= _MAX_COUNT)):
+        return None
+    cls, shapes = spec
+    values = {"role": role, "sender": sender, "seq": seq, "tick": tick, "t": t}
+    for name, shape in shapes:
+        value = raw.get(name, _MISSING)
+        if value is _MISSING:
+            if name not in _OPTIONAL:
+                return None
+            value = None  # left out by encode: absent means None, as on the full path
+        if shape == "vec" or (shape == "vec?" and value is not None):
+            if type(value) is not list or len(value) != 3:
+                return None
+            x, y, z = value
+            if not (type(x) is float and type(y) is float and type(z) is float
+                    and -MAX_MAGNITUDE <= x <= MAX_MAGNITUDE and -MAX_MAGNITUDE <= y <= MAX_MAGNITUDE
+                    and -MAX_MAGNITUDE <= z <= MAX_MAGNITUDE):
+                return None
+            value = np.array(value)
+        elif shape == "int" or (shape == "int?" and value is not None):
+            if type(value) is not int or not 0 <= value <= _MAX_COUNT:
+                return None
+        elif shape == "float?" and value is not None:
+            if type(value) is not float or not -MAX_MAGNITUDE <= value <= MAX_MAGNITUDE:
+                return None
+        elif shape == "bool":
+            if type(value) is not bool:
+                return None
+        elif shape == "counts":
+            if type(value) is not list:
+                return None
+            for x in value:
+                if type(x) is not int or not 0 <= x <= _MAX_COUNT:
+                    return None
+            value = tuple(value)
+        elif value is not None:  # an optional shape is None here; any other shape is not on the fast path
+            return None
+        values[name] = value
+    if "link_age" in values and len(values["link_age"]) != len(values["link_drops"]):
+        return None
+    if "est_ph" in values and _partial_estimate(values):
+        return None
+    msg = _new(cls)
+    msg.__dict__.update(values)
+    return msg
+
+
 def decode(payload: bytes) -> Message:
     """Parse and validate a wire payload; raises :class:`WireError` on anything malformed."""
     try:
         raw = msgpack.unpackb(payload, raw=False, strict_map_key=True)
     except Exception as exc:  # msgpack raises several unrelated types on garbage
         raise WireError(f"not msgpack: {type(exc).__name__}") from None
+    if type(raw) is dict:
+        msg = _decode_fast(raw)
+        if msg is not None:
+            return msg
     if not isinstance(raw, dict):
         raise WireError("not a map")
     if raw.get("schema") != SCHEMA_VERSION:
@@ -220,6 +353,9 @@ def decode(payload: bytes) -> Message:
             if name == "flags":
                 values[name] = 0
                 continue
+            if name in _OPTIONAL:
+                values[name] = None
+                continue
             raise WireError(f"missing field {name!r}")
         values[name] = _check(name, shapes[name], raw[name])
     if cls is WorldState:
@@ -228,4 +364,12 @@ def decode(payload: bytes) -> Message:
             raise WireError("world state: arrays of different robot counts")
     if "link_age" in values and len(values["link_age"]) != len(values["link_drops"]):
         raise WireError("link_age and link_drops: different link counts")
+    if "est_ph" in values and _partial_estimate(values):
+        raise WireError("est_tick, est_t, est_ph: a carried estimate needs all three")
     return cls(**values)
+
+
+def _partial_estimate(values: dict) -> bool:
+    """Whether a command's carried estimate is half there (est_vh alone may be absent)."""
+    have = [values["est_tick"] is not None, values["est_t"] is not None, values["est_ph"] is not None]
+    return any(have) and not all(have) or (values["est_vh"] is not None and not all(have))

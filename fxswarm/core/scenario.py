@@ -19,6 +19,7 @@ import numpy as np
 
 from fxswarm.core import motion
 from fxswarm.core.control import BehaviourGains, EstimatorGains
+from fxswarm.core.observer import DEFAULT_OBSERVER_GAINS, OBSERVER_GRAPHS, TRACKINGS, max_acceleration_inf
 from fxswarm.core.graph import TOPOLOGIES, adjacency, h_matrix, topology_edges, unreached_robots
 
 
@@ -61,6 +62,9 @@ class Scenario:
     estimator_variant: str = "fixed-time"  # [controller] estimator_variant: the estimator's law family
     discretisation: str = "euler"  # [controller] discretisation: "euler" (SPEC section 7) or "semi-implicit"
     delay_compensation: str = "leader-velocity"  # [controller] delay_compensation (DELAY_COMPENSATIONS)
+    tracking: str = "paper"  # [estimator] tracking: "paper" (eq. (11)) or "feedforward" (fxswarm.core.observer)
+    observer: EstimatorGains | None = None  # eq. (obs)'s gains (L1, L2, L3 as K1, K2, K3); only with feedforward
+    observer_graph: str = "oriented"  # [estimator] observer_graph (OBSERVER_GRAPHS): the links eq. (obs) uses
 
     @property
     def n(self) -> int:
@@ -307,6 +311,30 @@ def _check_estimator_variant(f: _Fields, g: EstimatorGains, variant: str) -> Non
                    f"{pair} = {num / den:g})", show_got=False)
 
 
+#: [estimator] fields of the velocity observer (eq. (obs), fxswarm.core.observer): its gains
+#: L1, L2, L3 (defaults: fxswarm.core.observer.DEFAULT_OBSERVER_GAINS).
+OBSERVER_FIELDS = ("observer_K1", "observer_K2", "observer_K3", "observer_graph")
+
+
+def _tracking(ef: _Fields, estimator: EstimatorGains) -> tuple[str, EstimatorGains | None, str]:
+    """``[estimator] tracking`` and, for "feedforward", the observer's gains (same exponents and
+    ``power`` as eq. (11))."""
+    tracking = ef.string("tracking", "paper", TRACKINGS)
+    if tracking != "feedforward":
+        for key in OBSERVER_FIELDS:
+            if ef.has(key):
+                ef.fail(key, 'no observer gain unless tracking = "feedforward" (the observer runs only then)',
+                        show_got=False)
+        return tracking, None, "oriented"
+    observer = EstimatorGains(
+        K1=ef.number("observer_K1", DEFAULT_OBSERVER_GAINS[0], positive=True),
+        K2=ef.number("observer_K2", DEFAULT_OBSERVER_GAINS[1], positive=True),
+        K3=ef.number("observer_K3", DEFAULT_OBSERVER_GAINS[2], positive=True),
+        r3=estimator.r3, r4=estimator.r4, r5=estimator.r5, r6=estimator.r6, power=estimator.power,
+    )
+    return tracking, observer, ef.string("observer_graph", "oriented", OBSERVER_GRAPHS)
+
+
 def parse(data: dict, source: str = "<scenario>") -> Scenario:
     """Validate a parsed TOML document into a :class:`Scenario`."""
     top = _Fields(source, data)
@@ -332,7 +360,7 @@ def parse(data: dict, source: str = "<scenario>") -> Scenario:
     delay_compensation = cf.string("delay_compensation", "leader-velocity", DELAY_COMPENSATIONS)
     _check_behaviour_variant(gf, formation, variant)
     ef = top.table_at("estimator")
-    ef.check_known({"power"})
+    ef.check_known({"power", "tracking", "observer_K1", "observer_K2", "observer_K3", "observer_graph"})
     estimator = EstimatorGains(
         K1=gf.number("K1", positive=True), K2=gf.number("K2", positive=True), K3=gf.number("K3", positive=True),
         r3=gf.number("r3", positive=True), r4=gf.number("r4", positive=True),
@@ -340,6 +368,7 @@ def parse(data: dict, source: str = "<scenario>") -> Scenario:
         power=ef.string("power", "pairwise", ("pairwise", "aggregate")),
     )
     _check_estimator_variant(gf, estimator, estimator_variant)
+    tracking, observer, observer_graph = _tracking(ef, estimator)
 
     # Offsets: a sinusoid shared by all robots, overridable per robot.
     ff = top.table_at("formation")
@@ -417,8 +446,16 @@ def parse(data: dict, source: str = "<scenario>") -> Scenario:
         robots=tuple(robots), a=a, b=b, leader=leader, obstacles=obstacles,
         formation=formation, avoidance=avoidance, estimator=estimator, raw=data,
         variant=variant, estimator_variant=estimator_variant, discretisation=discretisation,
-        delay_compensation=delay_compensation,
+        delay_compensation=delay_compensation, tracking=tracking, observer=observer, observer_graph=observer_graph,
     )
+    if observer is not None:
+        accel = max_acceleration_inf(leader)
+        if observer.K3 < accel:
+            warnings.warn(
+                f"{source}: estimator.observer_K3 = {observer.K3:g} is below the leader's top acceleration "
+                f"per axis ({accel:g} m/s^2): the velocity observer's fixed-time guarantee does not hold "
+                "(docs/estimator.md)", ScenarioWarning, stacklevel=2,
+            )
     leader_speed = leader.max_speed_inf(duration)
     if estimator.K3 < leader_speed:
         warnings.warn(
@@ -444,3 +481,15 @@ def load(path: str | FilePath) -> Scenario:
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{source}: not valid TOML: {exc}") from None
     return parse(data, source)
+
+
+def directed_links(sc: Scenario) -> list[tuple[int, int]]:
+    """The directed links ``(sender, receiver)`` in ``WorldState.link_*`` order: for each robot
+    ``i`` in ascending id, ``(j, i)`` for its neighbours ``j`` in ascending id, then ``(0, i)``
+    (the leader) if ``i`` is pinned. Robot ``i``'s ``Command.link_*`` are its run of this list."""
+    out = []
+    for r in sc.robots:
+        out += [(j, r.id) for j in sc.neighbours(r.id)]
+        if sc.is_pinned(r.id):
+            out.append((0, r.id))
+    return out

@@ -11,27 +11,24 @@ from __future__ import annotations
 import time
 from typing import Callable
 
-import numpy as np
-
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.inbox import FaultyInbox, link_counts, wrap
-from fxswarm.faults.plan import plan_of
+from fxswarm.faults.plan import FaultPlan, plan_of
 from fxswarm.faults.process import Mortal
-from fxswarm.faults.report import fault_summary
 
 
 class SwarmFaults:
-    """The faults of ``scenario`` for one runner.
+    """The faults of ``plan`` (default: the scenario's ``[faults]``) for one runner.
 
     lockstep: lock-step (delays in ticks) or real time (delays in seconds of
     ``clock``). ``mortal``: stand in for process faults in this process (the
     simulator; a role process whose launcher also sends real signals).
     """
 
-    def __init__(self, scenario: Scenario, lockstep: bool = True,
+    def __init__(self, scenario: Scenario, plan: FaultPlan | None = None, lockstep: bool = True,
                  clock: Callable[[], float] = time.monotonic, mortal: bool = True) -> None:
         self.sc = scenario
-        self.plan = plan_of(scenario)
+        self.plan = plan if plan is not None else plan_of(scenario)
         self.lockstep = lockstep
         self.clock = clock
         self.mortal = mortal
@@ -69,24 +66,14 @@ class SwarmFaults:
     def restarts(self) -> dict[str, int]:
         return {f"agent:{getattr(n, 'id', '?')}": n.restarts for n in self.built if getattr(n, "restarts", 0)}
 
-    def summary(self, traj: dict[str, np.ndarray], world) -> dict:
-        """The summary additions (faults, degraded modes, recoveries) for this runner's nodes."""
-        return fault_summary(self.sc, self.plan, traj, world, self.link_counts(), self.restarts())
 
+def wrap_for_process(node, role: str, ident: int, plan: FaultPlan, dt: float, lockstep: bool, speed: float):
+    """A role process's node behind ``plan``'s inbox filter (itself when nothing reaches it).
 
-def wrap_for_process(node, role: str, ident: int, scenario: Scenario, args) -> object:
-    """A role process's node behind the scenario's faults (with its ``--fault`` overrides).
-
-    Real time: delays are in simulation seconds on a clock running ``--speed``
-    times wall time. Process faults are the launcher's (real signals) here.
+    Real time: delays are in simulation seconds on a clock running ``speed`` times wall
+    time. Process faults are the launcher's (real signals) here.
     """
-    from fxswarm.faults.plan import with_cli_faults
-
-    sc = with_cli_faults(scenario, getattr(args, "fault", None))
-    plan = plan_of(sc)
-    speed = float(getattr(args, "speed", 1.0) or 1.0)
-    lockstep = getattr(args, "clock", "lockstep") == "lockstep"
-    return wrap(node, role, ident, plan, sc.dt, lockstep, lambda: time.monotonic() * speed)
+    return wrap(node, role, ident, plan, dt, lockstep, lambda: time.monotonic() * speed)
 
 
 def process_counters(node) -> dict:
@@ -94,26 +81,3 @@ def process_counters(node) -> dict:
     while node is not None and not isinstance(node, FaultyInbox):
         node = getattr(node, "inner", None) if not isinstance(node, Mortal) else node.node
     return {"links": {k: dict(v.__dict__) for k, v in node.links.items()}} if node is not None else {}
-
-
-def merge_process_links(summary: dict, schedule=None) -> None:
-    """Launcher: sum the processes' per-link counts into ``summary["faults"]["links"]``, and
-    list the process faults it sent (``faults.process_events``) from its ``schedule``."""
-    merged: dict[str, dict[str, int]] = {}
-    for counters in (summary.get("processes") or {}).values():
-        for key, c in (counters.get("links") or {}).items():
-            m = merged.setdefault(key, {"delivered": 0, "dropped": 0, "delayed": 0, "duplicated": 0})
-            for name in m:
-                m[name] += int(c.get(name, 0))
-    if "faults" in summary or merged:
-        summary.setdefault("faults", {})["links"] = dict(sorted(merged.items()))
-    if schedule is not None and schedule.log:
-        summary.setdefault("faults", {})["process_events"] = list(schedule.log)
-
-
-def world_process_summary(scenario: Scenario, args, traj: dict[str, np.ndarray], world) -> dict:
-    """The world process's summary additions (links are merged in later by the launcher)."""
-    from fxswarm.faults.plan import with_cli_faults
-
-    sc = with_cli_faults(scenario, getattr(args, "fault", None))
-    return fault_summary(sc, plan_of(sc), traj, world, {}, {})

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from fxswarm.core import bus as topics
-from fxswarm.core.messages import KINDS, Message, Sense
+from fxswarm.core.messages import KINDS, Command, Estimate, Message, Sense
 from fxswarm.faults.plan import FAULTABLE_KINDS, FaultPlan
 
 KIND_OF: dict[type, str] = {cls: name for name, cls in KINDS.items()}
@@ -61,8 +61,8 @@ def _upstream(subscriptions: list[str]) -> list[tuple[str, str]]:
         parts = topic.split("/")
         if topic == topics.LEADER_STATE:
             out.append(("leader", "leader"))
-        elif len(parts) == 3 and parts[0] == "agent" and parts[2] == "estimate" and parts[1].isdigit():
-            out.append((f"agent:{parts[1]}", "estimate"))
+        elif len(parts) == 3 and parts[0] == "agent" and parts[2] in ("estimate", "cmd") and parts[1].isdigit():
+            out.append((f"agent:{parts[1]}", "estimate"))  # a neighbour's estimate rides on its command
     return out
 
 
@@ -98,15 +98,14 @@ class FaultyInbox:
 
     def install(self, node) -> None:
         """Attach (or re-attach, after a restart) the node this inbox feeds; the node under any
-        other wrapper (``.inner``) gets the ``expects`` hook and the plan's degraded limits."""
+        other wrapper (``.inner``) gets the ``expects`` hook. (Its degraded limits it took from
+        the same plan when it was built: every runner passes ``limits=plan.limits``.)"""
         self.node = node
         core = node
         while hasattr(core, "inner"):
             core = core.inner
         if hasattr(core, "expects"):
             core.expects = self.expects
-        if hasattr(core, "limits"):
-            core.limits = self.plan.limits
 
     @property
     def inner(self):
@@ -152,6 +151,14 @@ class FaultyInbox:
     # --- delivery ------------------------------------------------------------------------
 
     def handle(self, topic: str, msg: Message) -> list[topics.Outgoing]:
+        if type(msg) is Command and self.receiver != "world":
+            # A neighbour's command, heard for the estimate it carries: that is what a link
+            # fault acts on (kind "estimate", its tick), as on an estimate sent alone.
+            msg = msg.carried_estimate()
+            if msg is None:
+                return []
+        elif type(msg) is Estimate and self.receiver == "world":
+            return self.node.handle(topic, msg)  # a robot's first estimate, on its command key: not the world's
         kind = KIND_OF.get(type(msg))
         if kind not in FAULTABLE_KINDS:
             return self.node.handle(topic, msg)

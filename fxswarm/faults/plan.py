@@ -19,10 +19,12 @@ lock-step and the loggers and are never faulted).
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 import struct
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from fnmatch import fnmatchcase
+from pathlib import Path
 
 from fxswarm.core.scenario import Scenario, ScenarioError, _Fields
 
@@ -160,10 +162,6 @@ class FaultPlan:
     _burst: dict = field(default_factory=dict, compare=False, repr=False)  # chain states per link
     _rules_of: dict = field(default_factory=dict, compare=False, repr=False)  # link -> matching rules
 
-    @property
-    def has_link_faults(self) -> bool:
-        return bool(self.rules or self.cuts)
-
     def touches(self, receiver: str) -> bool:
         """Whether any link rule, cut or process fault can reach ``receiver`` (else it needs no
         inbox filter): a dead agent concerns every receiver that would wait for it."""
@@ -259,26 +257,28 @@ def _endpoint_ok(name: str) -> bool:
         name.startswith("agent:") and (name[6:] == "*" or name[6:].isdigit() or any(c in name[6:] for c in "*?[")))
 
 
-def _link(f: _Fields, key: str | int, text) -> tuple[str, str]:
+def _link(f: _Fields, key: str | int, text, n: int) -> tuple[str, str]:
     if not isinstance(text, str) or text.count("->") != 1:
         f.fail(key, "a link 'SRC->DST' such as 'agent:*->agent:4', 'leader->*' or 'world->agent:5'", text)
     src, dst = (s.strip() for s in text.split("->"))
     for end in (src, dst):
         if not _endpoint_ok(end):
             f.fail(key, "endpoints 'world', 'leader', 'agent:<id>', 'agent:*' or '*'", text)
+        if end[6:].isdigit() and not 1 <= int(end[6:]) <= n:  # a robot the scenario does not have
+            f.fail(key, f"endpoints 'agent:<id>' with id in 1..{n} (the scenario's robots)", text)
     return src, dst
 
 
-def _links(f: _Fields) -> list[tuple[str, str]]:
+def _links(f: _Fields, n: int) -> list[tuple[str, str]]:
     if f.has("link") == f.has("links") and f.has("link"):
         f.fail("link", "either 'link' or 'links', not both", show_got=False)
     if f.has("link"):
-        return [_link(f, "link", f.table["link"])]
+        return [_link(f, "link", f.table["link"], n)]
     raw = f.table.get("links", [])
     if not isinstance(raw, list):
         f.fail("links", "a list of 'SRC->DST' links", raw)
     lf = _Fields(f.source, {}, f.sub_path("links"))
-    return [_link(lf, k, x) for k, x in enumerate(raw)]
+    return [_link(lf, k, x, n) for k, x in enumerate(raw)]
 
 
 def _window(f: _Fields, duration: float | None) -> tuple[float, float]:
@@ -289,10 +289,10 @@ def _window(f: _Fields, duration: float | None) -> tuple[float, float]:
     return start, end
 
 
-def _rule(f: _Fields) -> list[LinkRule]:
+def _rule(f: _Fields, n: int) -> list[LinkRule]:
     f.check_known({"link", "links", "kinds", "drop", "burst", "delay", "jitter", "duplicate", "reorder",
                    "reorder_delay"})
-    links = _links(f)
+    links = _links(f, n)
     if not links:
         f.fail("link", "a link 'SRC->DST'", show_got=False)
     burst = None
@@ -346,13 +346,13 @@ def parse_faults(table: dict | None, scenario_seed: int, n: int, source: str = "
     )
     rules: list[LinkRule] = []
     for rf in f.tables("links"):
-        rules += _rule(rf)
+        rules += _rule(rf, n)
     cuts: list[Cut] = []
     for pf in f.tables("partitions"):
         pf.check_known({"start", "end", "link", "links", "isolate", "kinds"})
         start, end = _window(pf, None)
         isolate = _robot_ids(pf, "isolate", n)
-        links = tuple(_links(pf))
+        links = tuple(_links(pf, n))
         if not isolate and not links:
             pf.fail("isolate", "robots to isolate or 'links' to cut", show_got=False)
         what = (f"isolate {','.join(map(str, isolate))}" if isolate else "") + \
@@ -393,7 +393,14 @@ def degraded_limits(scenario: Scenario) -> DegradedLimits:
     return plan_of(scenario).limits
 
 
-# --- command-line overrides --------------------------------------------------------
+# --- resolution: the scenario's table, then --fault flags, then FXSWARM_FAULTS -----------
+
+#: Where the compose writer (``fxswarm compose``) reads extra fault specs, ``;``-separated.
+FAULTS_ENV = "FXSWARM_FAULTS"
+#: Where a role process finds its resolved plan when no ``--fault-plan`` is given (compose).
+PLAN_ENV = "FXSWARM_FAULT_PLAN"
+#: The serialised plan's format tag: a reader refuses any other.
+PLAN_FORMAT = "fxswarm-fault-plan/1"
 
 CLI_HELP = (
     "add a fault (repeatable): 'SRC->DST key=value ...' with keys drop, delay, jitter, duplicate, "
@@ -402,6 +409,34 @@ CLI_HELP = (
     "'leader-outage START-END'; 'kill agent:2 at=10 [restart=12]'; 'freeze agent:2 at=10 [thaw=12]'; "
     "'seed=N'; 'staleness=S', 'sense_timeout=S', 'silent_hold=S'"
 )
+
+
+def resolve(scenario: Scenario, flags: list[str] | tuple[str, ...] | None = (),
+            env: dict[str, str] | None = None) -> FaultPlan:
+    """The run's one fault plan: the scenario's ``[faults]``, then each ``--fault`` spec of
+    ``flags``, then each ``;``-separated spec of ``env[FXSWARM_FAULTS]`` (when ``env`` is given).
+
+    Rules keep that order (a rule's index is part of its fates' hash); a later ``key=value``
+    (``seed=``, ``staleness=``, ...) wins. Raises :class:`ScenarioError` naming the file and
+    field, or the flag or variable and the spec, and what was expected.
+    """
+    table = _copy_table(scenario.raw.get("faults") or {})
+    parse_faults(table, scenario.seed, scenario.n, scenario.source)  # the file's own errors name the file
+    specs = [("--fault", s) for s in (flags or ())]
+    if env is not None:
+        specs += [(FAULTS_ENV, s.strip()) for s in env.get(FAULTS_ENV, "").split(";") if s.strip()]
+    for origin, spec in specs:
+        where = f"{origin} {spec!r}"
+        fragment = _spec_table(spec, where)
+        parse_faults(fragment, scenario.seed, scenario.n, where)  # its errors name this spec
+        for key, value in fragment.items():
+            if isinstance(value, list):
+                table.setdefault(key, []).extend(value)
+            else:
+                table[key] = value
+    origins = sorted({o for o, _ in specs})
+    source = scenario.source + (f" with {' and '.join(origins)}" if origins else "")
+    return parse_faults(table, scenario.seed, scenario.n, source)
 
 
 def _cli_value(text: str):
@@ -415,70 +450,60 @@ def _cli_value(text: str):
         return text
 
 
-def with_cli_faults(scenario: Scenario, specs: list[str] | None) -> Scenario:
-    """The scenario with ``--fault`` specs appended to its ``[faults]`` table (validated)."""
-    if not specs:
-        plan_of(scenario)  # validate the file's table early
-        return scenario
-    faults = _copy_table(scenario.raw.get("faults") or {})
-    for k, spec in enumerate(specs):
-        where = f"--fault {spec!r}"
-        words = spec.split()
-        if not words:
-            raise ScenarioError(f"{where}: expected a fault, got nothing")
-        head, rest = words[0], words[1:]
-        if "->" in head:
-            pairs = _pairs(where, head, rest)
-            entry: dict = {"link": head}
-            for key, value in pairs.items():
-                if key == "kinds":
-                    entry[key] = value.split(",")
-                elif key == "burst":
+def _spec_table(spec: str, where: str) -> dict:
+    """One ``--fault`` spec as the ``[faults]`` table that says the same (not yet validated)."""
+    words = spec.split()
+    if not words:
+        raise ScenarioError(f"{where}: expected a fault, got nothing")
+    head, rest = words[0], words[1:]
+    if "->" in head:
+        entry: dict = {"link": head}
+        for key, value in _pairs(where, head, rest).items():
+            if key == "kinds":
+                entry[key] = value.split(",")
+            elif key == "burst":
+                try:
                     parts = [float(x) for x in value.split(",")]
-                    entry[key] = dict(zip(("p_good_bad", "p_bad_good", "loss_good", "loss_bad"), parts))
-                else:
-                    entry[key] = _cli_value(value)
-            faults.setdefault("links", []).append(entry)
-        elif head in ("partition", "leader-outage"):
-            if not rest or "-" not in rest[0] or "=" in rest[0]:
-                raise ScenarioError(f"{where}: expected '{head} START-END ...' (seconds)")
-            a, b = rest[0].split("-", 1)
-            try:
-                entry = {"start": float(a), "end": float(b)}
-            except ValueError:
-                raise ScenarioError(f"{where}: expected START-END in seconds, got {rest[0]!r}") from None
-            pairs = _pairs(where, head, rest[1:])
-            if head == "partition":
-                if "isolate" in pairs:
-                    entry["isolate"] = [int(x) for x in pairs.pop("isolate").split(",")]
-                if "links" in pairs:
-                    entry["links"] = pairs.pop("links").split(",")
-                if "kinds" in pairs:
-                    entry["kinds"] = pairs.pop("kinds").split(",")
-                faults.setdefault("partitions", []).append(entry | pairs)
+                except ValueError:
+                    raise ScenarioError(f"{where}: expected burst=p_gb,p_bg[,loss_good,loss_bad] (numbers), "
+                                        f"got {value!r}") from None
+                entry[key] = dict(zip(("p_good_bad", "p_bad_good", "loss_good", "loss_bad"), parts))
             else:
-                faults.setdefault("leader_outages", []).append(entry | pairs)
-        elif head in ("kill", "freeze"):
-            if not rest:
-                raise ScenarioError(f"{where}: expected '{head} TARGET at=SECONDS'")
-            entry = {"target": rest[0]}
-            pairs = _pairs(where, head, rest[1:])
-            if "at" not in pairs:
-                raise ScenarioError(f"{where}: expected at=SECONDS")
-            entry[head] = float(pairs.pop("at"))
-            entry |= {key: _cli_value(v) for key, v in pairs.items()}
-            faults.setdefault("processes", []).append(entry)
-        elif "=" in head and not rest:
-            key, value = head.split("=", 1)
-            faults[key] = _cli_value(value)
-        else:
-            raise ScenarioError(f"{where}: expected 'SRC->DST ...', 'partition', 'leader-outage', 'kill', "
-                                f"'freeze' or key=value")
-    raw = dict(scenario.raw)
-    raw["faults"] = faults
-    out = replace(scenario, raw=raw)
-    plan_of(replace(out, source=f"{scenario.source} (with --fault)"))
-    return out
+                entry[key] = _cli_value(value)
+        return {"links": [entry]}
+    if head in ("partition", "leader-outage"):
+        if not rest or "-" not in rest[0] or "=" in rest[0]:
+            raise ScenarioError(f"{where}: expected '{head} START-END ...' (seconds)")
+        a, b = rest[0].split("-", 1)
+        try:
+            entry = {"start": float(a), "end": float(b)}
+        except ValueError:
+            raise ScenarioError(f"{where}: expected START-END in seconds, got {rest[0]!r}") from None
+        pairs = _pairs(where, head, rest[1:])
+        if head == "leader-outage":
+            return {"leader_outages": [entry | pairs]}
+        try:
+            if "isolate" in pairs:
+                entry["isolate"] = [int(x) for x in pairs.pop("isolate").split(",")]
+        except ValueError:
+            raise ScenarioError(f"{where}: expected isolate=ID[,ID...] (robot ids)") from None
+        for key in ("links", "kinds"):
+            if key in pairs:
+                entry[key] = pairs.pop(key).split(",")
+        return {"partitions": [entry | pairs]}
+    if head in ("kill", "freeze"):
+        if not rest:
+            raise ScenarioError(f"{where}: expected '{head} TARGET at=SECONDS'")
+        pairs = _pairs(where, head, rest[1:])
+        if "at" not in pairs:
+            raise ScenarioError(f"{where}: expected at=SECONDS")
+        entry = {"target": rest[0], head: _cli_value(pairs.pop("at"))}
+        return {"processes": [entry | {key: _cli_value(v) for key, v in pairs.items()}]}
+    if "=" in head and not rest:
+        key, value = head.split("=", 1)
+        return {key: _cli_value(value)}
+    raise ScenarioError(f"{where}: expected 'SRC->DST ...', 'partition', 'leader-outage', 'kill', "
+                        f"'freeze' or key=value")
 
 
 def _pairs(where: str, head: str, words: list[str]) -> dict[str, str]:
@@ -493,3 +518,90 @@ def _copy_table(value):
     if isinstance(value, list):
         return [_copy_table(v) for v in value]
     return value
+
+
+# --- the serialised plan: what the edge hands every process ----------------------------
+
+
+def to_table(plan: FaultPlan) -> dict:
+    """The ``[faults]`` table that :func:`parse_faults` turns back into ``plan`` (every field
+    explicit), so a received plan is checked by the same validator as a scenario file."""
+    links = []
+    for r in plan.rules:
+        entry = {"link": f"{r.src}->{r.dst}", "kinds": list(r.kinds), "drop": r.drop, "delay": r.delay,
+                 "jitter": r.jitter, "duplicate": r.duplicate, "reorder": r.reorder,
+                 "reorder_delay": r.reorder_delay}
+        if r.burst is not None:
+            entry["burst"] = {"p_good_bad": r.burst.p_good_bad, "p_bad_good": r.burst.p_bad_good,
+                              "loss_good": r.burst.loss_good, "loss_bad": r.burst.loss_bad}
+        links.append(entry)
+    partitions, outages = [], []
+    for c in plan.cuts:
+        if c.label.startswith("leader outage"):
+            outages.append({"start": c.start, "end": c.end})
+            continue
+        entry = {"start": c.start, "end": c.end, "kinds": list(c.kinds)}
+        if c.isolate:
+            entry["isolate"] = list(c.isolate)
+        if c.links:
+            entry["links"] = [f"{s}->{d}" for s, d in c.links]
+        partitions.append(entry)
+    processes = []
+    for p in plan.processes:
+        entry = {"target": p.target, p.action: p.at}
+        if p.restart is not None:
+            entry["restart" if p.action == "kill" else "thaw"] = p.restart
+        processes.append(entry)
+    table: dict = {"seed": plan.seed, "staleness": plan.limits.staleness,
+                   "sense_timeout": plan.limits.sense_timeout, "silent_hold": plan.limits.silent_hold}
+    for key, value in (("links", links), ("partitions", partitions), ("leader_outages", outages),
+                       ("processes", processes)):
+        if value:
+            table[key] = value
+    return table
+
+
+def _origin(scenario: Scenario) -> str:
+    """What a plan depends on in its scenario besides the robot count: the seed and the
+    ``[faults]`` table (a digest): another scenario file with the same ones takes the same plan."""
+    text = json.dumps([scenario.seed, scenario.raw.get("faults") or {}], sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def dumps(plan: FaultPlan, scenario: Scenario) -> str:
+    """``plan`` as JSON (one line), tagged with its format and the scenario it was resolved from."""
+    return json.dumps({"format": PLAN_FORMAT, "scenario": scenario.name, "robots": scenario.n,
+                       "origin": _origin(scenario), "faults": to_table(plan)}, separators=(",", ":"))
+
+
+def loads(text: str, scenario: Scenario, source: str) -> FaultPlan:
+    """A plan serialised by :func:`dumps`, checked against ``scenario`` (which it must have been
+    resolved for) and validated; errors name ``source`` (e.g. ``--fault-plan FILE``)."""
+    try:
+        data = json.loads(text)
+    except ValueError as exc:
+        raise ScenarioError(f"{source}: expected a fault plan in JSON, got invalid JSON ({exc})") from None
+    if not isinstance(data, dict) or data.get("format") != PLAN_FORMAT:
+        got = data.get("format") if isinstance(data, dict) else type(data).__name__
+        raise ScenarioError(f"{source}: format: expected {PLAN_FORMAT!r}, got {got!r}")
+    if data.get("robots") != scenario.n or data.get("origin") != _origin(scenario):
+        raise ScenarioError(
+            f"{source}: scenario: expected a plan resolved from {scenario.source} ({scenario.n} robots, its seed "
+            f"and [faults]), got one from {data.get('scenario')!r} ({data.get('robots')} robots, other seed or "
+            f"[faults]); resolve it again from this file")
+    faults = data.get("faults")
+    if not isinstance(faults, dict):
+        raise ScenarioError(f"{source}: faults: expected a table, got {faults!r}")
+    return parse_faults(faults, scenario.seed, scenario.n, source)
+
+
+def load_plan(value: str, scenario: Scenario, source: str) -> FaultPlan:
+    """``--fault-plan JSON|FILE``: inline JSON (it starts with ``{``) or a file that holds it."""
+    if value.lstrip().startswith("{"):
+        return loads(value, scenario, source)
+    try:
+        text = Path(value).read_text()
+    except OSError as exc:
+        raise ScenarioError(f"{source}: expected a fault plan file, cannot read it: "
+                            f"{exc.strerror or exc}") from None
+    return loads(text, scenario, source)

@@ -19,10 +19,10 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from fxswarm.core import bus as topics
-from fxswarm.core.messages import Estimate, LeaderState, Message
+from fxswarm.core.messages import Command, Estimate, LeaderState, Message
 from fxswarm.faults.plan import ProcessFault
 
-#: What lock-step sends a tick early (docs/DESIGN.md "Lock-step pipelining").
+#: What lock-step sends a tick early (docs/design.md "Lock-step pipelining").
 PIPELINED = (Estimate, LeaderState)
 
 
@@ -59,6 +59,10 @@ class Mortal:
         return self.node.subscriptions()
 
     def handle(self, topic: str, msg: Message) -> list[topics.Outgoing]:
+        if type(msg) is Command:  # a neighbour's, heard for the estimate it carries
+            msg = msg.carried_estimate()
+            if msg is None:
+                return []
         if isinstance(msg, PIPELINED) and msg.t > self.now and \
                 active_fault(self.faults, msg.t) is not active_fault(self.faults, self.now):
             # Lock-step sends a neighbour's estimate and the leader's state a tick early: across
@@ -105,7 +109,7 @@ class ProcessSchedule:
     not been returned before; actions: ``kill``, ``restart``, ``freeze``, ``thaw``.
     """
 
-    faults: tuple[ProcessFault, ...]
+    faults: tuple[ProcessFault, ...]  # the resolved plan's ``processes``
     _done: set = field(default_factory=set)
     log: list = field(default_factory=list)  # what run() sent: {action, target, t_s}, for the summary
 
@@ -119,15 +123,8 @@ class ProcessSchedule:
                     out.append((when, what, f.target))
         return [(what, target) for _, what, target in sorted(out, key=lambda e: e[0])]  # in time order
 
-    @classmethod
-    def of(cls, scenario, specs: tuple[str, ...] | list[str] = ()) -> "ProcessSchedule":
-        """The schedule of ``scenario``'s ``[[faults.processes]]`` (plus ``--fault`` specs)."""
-        from fxswarm.faults.plan import plan_of, with_cli_faults
-
-        return cls(plan_of(with_cli_faults(scenario, list(specs))).processes)
-
     def run(self, swarm) -> list[tuple[str, str]]:
-        """Send what is due to ``swarm`` (a :class:`fxswarm.runtime.launcher.Swarm`); return it.
+        """Send what is due to ``swarm`` (a :class:`fxswarm.launch.launcher.Swarm`); return it.
 
         Process names: ``agent:3`` -> ``agent-3``. A restart waits until the new
         process is alive (it rejoins with a fresh state).

@@ -8,7 +8,7 @@ from fxswarm.core.metrics import formation_errors, settle_time
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.plan import FaultPlan
 
-#: Names of the Command.flags bits, in bit order (see fxswarm.agent.node FLAG_*).
+#: Names of the Command.flags bits, in bit order (see fxswarm.agents.node FLAG_*).
 FLAG_BITS = ("stale_neighbour", "no_leader", "extrapolating", "no_sensing")
 
 

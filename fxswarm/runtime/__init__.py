@@ -1,1 +1,1 @@
-"""Runners: the in-process simulator, the role processes, the launcher."""
+"""What every role process stands on: the Zenoh bus, the process shell, the router, health, outputs."""

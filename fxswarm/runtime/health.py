@@ -12,6 +12,9 @@ health checks run, and what a person can run to ask the same question::
 Defaults come from the environment, so a container's health check needs no
 options: ``FXSWARM_SWARM`` (swarm name) and ``FXSWARM_CONNECT`` (router
 endpoint, default ``tcp/router:7447``, the router service of the compose file).
+Secure mode (``--secure KEYS`` or ``FXSWARM_SECURE``): it shows a certificate from
+KEYS, by default the asked process's own (a container holds only its own), or
+``--as NAME`` (``observer`` for a person); every identity may ask for tokens.
 """
 
 from __future__ import annotations
@@ -36,6 +39,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--timeout", type=positive, default=2.0, metavar="S",
                    help="how long to wait for the router and for the answer (default 2 s)")
     p.add_argument("--quiet", action="store_true", help="no line on stdout")
+    p.add_argument("--secure", default=os.environ.get("FXSWARM_SECURE") or None, metavar="KEYS",
+                   help="keys folder (secure mode; default $FXSWARM_SECURE): ask over mutual TLS")
+    p.add_argument("--as", dest="identity", default=None, metavar="NAME",
+                   help="secure: whose certificate to show (default: the asked process's own)")
 
 
 def token_key(swarm: str, role: str, ident: str) -> str:
@@ -45,7 +52,7 @@ def token_key(swarm: str, role: str, ident: str) -> str:
     return f"{prefix(swarm)}/{alive_topic(role, ident)}"
 
 
-def is_alive(swarm: str, role: str, ident: str, connect: str, timeout: float) -> bool:
+def is_alive(swarm: str, role: str, ident: str, connect: str, timeout: float, tls=None) -> bool:
     """Whether the token of ``role``/``ident`` is declared, as seen through the router at ``connect``.
 
     Raises ``OSError`` (with the endpoint named) if the router cannot be reached in ``timeout`` s.
@@ -57,6 +64,8 @@ def is_alive(swarm: str, role: str, ident: str, connect: str, timeout: float) ->
     conf.insert_json5("connect/endpoints", f'["{connect}"]')
     conf.insert_json5("connect/timeout_ms", str(int(timeout * 1000)))
     conf.insert_json5("scouting/multicast/enabled", "false")
+    if tls is not None:
+        tls.insert_into(conf)
     try:
         session = zenoh.open(conf)
     except Exception as exc:  # zenoh raises its own ZError
@@ -74,8 +83,18 @@ def is_alive(swarm: str, role: str, ident: str, connect: str, timeout: float) ->
 def main(args: argparse.Namespace) -> int:
     ident = args.id
     name = f"{args.role}/{ident}"
+    tls = None
+    if args.secure:
+        from fxswarm.runtime.tls import KeyFileError, checked, identity, tls_endpoints
+
+        try:
+            tls_endpoints([args.connect], "--connect")
+            tls = checked(args.secure, args.identity or identity(args.role, ident))
+        except (KeyFileError, ValueError) as exc:
+            print(f"fxswarm health: {exc}", file=sys.stderr)
+            return 2
     try:
-        alive = is_alive(args.swarm, args.role, ident, args.connect, args.timeout)
+        alive = is_alive(args.swarm, args.role, ident, args.connect, args.timeout, tls)
     except OSError as exc:
         print(f"fxswarm health: {name} of swarm {args.swarm!r}: {exc}", file=sys.stderr)
         return 1

@@ -42,6 +42,21 @@ def write_summary(out_dir: str | Path, summary: dict) -> None:
     tmp.replace(path)  # readers never see half a summary
 
 
+def read_process_counters(out_dir: str | Path, since: float | None = None) -> dict[str, dict]:
+    """The role processes' counters files, ``OUT/processes/<role>-<id>.json``, by file stem;
+    ``since``: only those written at or after that time (s since the epoch; a reused run
+    folder keeps an earlier run's). Unreadable files are skipped."""
+    out = {}
+    for path in sorted((Path(out_dir) / "processes").glob("*.json")):
+        try:
+            if since is not None and path.stat().st_mtime < since:
+                continue
+            out[path.stem] = json.loads(path.read_text())
+        except (OSError, ValueError):
+            continue
+    return out
+
+
 def load_trajectory(out_dir: str | Path) -> dict[str, np.ndarray]:
     with np.load(Path(out_dir) / "trajectory.npz") as data:
         return {k: data[k] for k in data.files}

@@ -5,7 +5,7 @@ A role process (``fxswarm world|leader|agent``) is a node (sans I/O) on a
 the role's module. Everything a process receives reaches its node through
 ONE function, :meth:`RoleProcess.deliver`; the node itself is built in one
 function per role (``build_node``), and :func:`wrap_node` is the single place
-where an inbox filter (e.g. the fault filter of ``fxswarm.core.faults``) can
+where an inbox filter (e.g. the fault filter of ``fxswarm.faults``) can
 be slotted around it. A wrapper must keep ``subscriptions()``/``handle()``
 and expose the wrapped node as ``.inner`` (the loops read the node's state
 through :func:`unwrap`).
@@ -28,18 +28,24 @@ from pathlib import Path
 
 from fxswarm.core import bus as topics
 from fxswarm.core.messages import Message
+from fxswarm.core.pacing import Deadline, Pacer, SimClock, WallClock
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.apply import process_counters, wrap_for_process
 from fxswarm.faults.plan import CLI_HELP as FAULT_HELP
+from fxswarm.faults.plan import PLAN_ENV, FaultPlan
 from fxswarm.runtime.numbers import non_negative, positive
 from fxswarm.runtime.output import prepare_run_folder
-from fxswarm.runtime.sim_cli import with_faults_or_exit
-from fxswarm.runtime.zenoh_bus import ConnectError, ZenohBus, add_zenoh_arguments, options_from_args, wait_until
+from fxswarm.runtime.config import process_plan_or_exit
+from fxswarm.runtime.tls import identity
+from fxswarm.runtime.zenoh_bus import (ConnectError, ZenohBus, add_zenoh_arguments, log_zenoh_warnings,
+                                       options_from_args, wait_until)
 
 #: Set by the launcher: a child whose parent is gone (even SIGKILLed) stops by itself.
 PARENT_ENV = "FXSWARM_PARENT_PID"
 CLOCKS = ("lockstep", "realtime")
 DEFAULT_WORLD_TIMEOUT_S = 60.0
+#: Lock-step: how long a process stays after the run is over for messages still on their way.
+DRAIN_S = 2.0
 
 
 def add_process_arguments(p: argparse.ArgumentParser) -> None:
@@ -55,7 +61,11 @@ def add_process_arguments(p: argparse.ArgumentParser) -> None:
                         "(default: 5 control periods)")
     p.add_argument("--out", default=None,
                    help="run folder; this process writes its counters to OUT/processes/<role>-<id>.json")
-    p.add_argument("--fault", action="append", default=None, metavar="SPEC", help=FAULT_HELP)
+    p.add_argument("--fault", action="append", default=None, metavar="SPEC",
+                   help=FAULT_HELP + " (started by hand; a launcher passes --fault-plan)")
+    p.add_argument("--fault-plan", default=None, metavar="JSON|FILE",
+                   help="the run's resolved fault plan (as `fxswarm run` and `fxswarm compose` hand it to every "
+                        f"process; default: ${PLAN_ENV}, else the scenario's [faults] and --fault)")
     p.add_argument("--world-timeout", type=non_negative, default=DEFAULT_WORLD_TIMEOUT_S, metavar="S",
                    help="agents, leader, logger: how long to wait for a world that is gone without having "
                         "ended the run (a network cut longer than the Zenoh lease, a frozen or crashed world) "
@@ -63,9 +73,9 @@ def add_process_arguments(p: argparse.ArgumentParser) -> None:
     add_zenoh_arguments(p)
 
 
-def wrap_node(node, role: str, ident: int, scenario: Scenario, args: argparse.Namespace):
-    """The one place where an inbox filter wraps a node: the scenario's faults (fxswarm.faults)."""
-    return wrap_for_process(node, role, ident, scenario, args)
+def wrap_node(node, role: str, ident: int, plan: FaultPlan, scenario: Scenario, args: argparse.Namespace):
+    """The one place where an inbox filter wraps a node: the run's fault plan (fxswarm.faults)."""
+    return wrap_for_process(node, role, ident, plan, scenario.dt, args.clock == "lockstep", float(args.speed))
 
 
 def unwrap(node):
@@ -75,57 +85,24 @@ def unwrap(node):
     return node
 
 
-class SimClock:
-    """Simulation time in a real-time process: the world's, as last heard.
-
-    The world's time is the simulation's: it advances one ``dt`` per tick,
-    paced at ``dt / speed`` wall seconds while the machine keeps up, and
-    slower when it cannot. Every other process takes the latest time stamp of
-    the world's messages as its own time (no extrapolation: a process that
-    ran its own clock between messages would run ahead of a world that slows
-    down, and a leader ahead of the world pulls every estimate ahead of it).
-    So an agent acting twice on one sensing integrates ``dt = 0`` the second
-    time, and one that missed a tick integrates both. No wall clock is shared.
-    """
-
-    def __init__(self, speed: float) -> None:
-        if not speed > 0:
-            raise ValueError(f"--speed: expected a positive number, got {speed}")
-        self.speed = speed
-        self.t: float | None = None
-
-    def start_now(self) -> None:
-        self.t = 0.0
-
-    def observe(self, t: float, received: float | None = None) -> None:
-        if self.t is None or t > self.t:
-            self.t = t
-
-    @property
-    def known(self) -> bool:
-        return self.t is not None
-
-    def now(self) -> float:
-        """Simulation time, s; never decreases."""
-        assert self.t is not None, "simulation time before the world started"
-        return self.t
-
-
 class RoleProcess:
     """One role's process: its bus, its node, its signals, its counters file."""
 
-    def __init__(self, role: str, ident: int, scenario: Scenario, args: argparse.Namespace) -> None:
+    def __init__(self, role: str, ident: int, scenario: Scenario, args: argparse.Namespace,
+                 wall_clock: WallClock = time.monotonic) -> None:
         self.role, self.ident, self.sc, self.args = role, ident, scenario, args
+        self.wall_clock = wall_clock  # every wall-time decision (pacing, timeouts) reads this
         self.name = f"{role}/{ident}"
         self.stopping = False
         self.stop_reason = ""
         self.lockstep = args.clock == "lockstep"
-        self.clock = SimClock(args.speed)
-        self.stale_after = args.stale_after if args.stale_after is not None else 5 * scenario.dt
+        # Real time: a message older than --stale-after simulation s is counted stale.
+        self.clock = SimClock(args.speed, args.stale_after if args.stale_after is not None else 5 * scenario.dt)
         self.alive: set[str] = set()  # tokens seen up (role/id)
         self.gone: set[str] = set()  # tokens seen up, then down
         self.run_over = False  # the world's RUN_OVER token was seen: the run is over, this process leaves
-        self.world_lost_at: float | None = None  # monotonic time the world went without ending the run
+        self.world_lost: Deadline | None = None  # running while the world is gone without ending the run
+        self.drain_until: Deadline | None = None  # the run is over: waiting for its last messages
         self.ended = False  # the world has ended the run (end_run): deliver nothing more
         self.node = None
         self.core = None
@@ -137,14 +114,18 @@ class RoleProcess:
         sys.setswitchinterval(float(os.environ.get("FXSWARM_SWITCH_INTERVAL", "0.0005")))
         who = f"fxswarm {role}" + (f" {ident}" if role == "agent" else "")  # in what it says
         try:
-            swarm, options = options_from_args(args, scenario.raw.get("zenoh"), scenario.source)
+            swarm, options = options_from_args(args, scenario.raw.get("zenoh"), scenario.source,
+                                               identity(role, ident))  # --secure: its own key, checked
         except ValueError as exc:
             print(f"{who}: {exc}", file=sys.stderr)
             raise SystemExit(2) from None
-        # Refused before the session opens (bad input: one line, exit 2, nothing to close).
-        with_faults_or_exit(scenario, getattr(args, "fault", None))
+        # The run's fault plan, received (or resolved from --fault when started by hand) once, and
+        # refused before the session opens (bad input: one line, exit 2, nothing to close).
+        self.plan = process_plan_or_exit(scenario, getattr(args, "fault_plan", None), getattr(args, "fault", None), who)
         if args.out:
             prepare_run_folder(args.out, who)
+        if options.tls is not None:
+            log_zenoh_warnings()  # TLS refusals at this process's own links (a mesh peer) go to its log
         # Installed first: a client waiting for its router must hear Ctrl-C too (and a
         # SIGINT ignored where the process was started, e.g. a background job, is heard).
         for sig in (signal.SIGTERM, signal.SIGINT):
@@ -200,21 +181,27 @@ class RoleProcess:
         then stop as ``world lost`` (exit status 1).
         """
         if self.run_over:
+            if self.lockstep and not self.drained():
+                # What a sender put before the run ended may still be on its way: its fate
+                # (delivered, dropped, delayed) is counted on arrival, as the simulator counts it.
+                if self.drain_until is None:
+                    self.drain_until = Deadline(DRAIN_S, self.wall_clock)
+                if not self.drain_until.passed():
+                    return
             self.stop("run over")
             return
         if "world/0" not in self.gone:
-            if self.world_lost_at is not None:
-                self.world_lost_at = None
+            if self.world_lost is not None:
+                self.world_lost = None
                 print(f"fxswarm {self.role} {self.ident}: the world is back", file=sys.stderr)
             return
-        now = time.monotonic()
         timeout = self.args.world_timeout
-        if self.world_lost_at is None:
-            self.world_lost_at = now
+        if self.world_lost is None:
+            self.world_lost = Deadline(timeout, self.wall_clock)
             wait = f"up to {timeout:g} s" if timeout > 0 else "for as long as it takes"
             print(f"fxswarm {self.role} {self.ident}: lost the world before it ended the run; "
                   f"waiting {wait} for it to come back", file=sys.stderr)
-        elif timeout > 0 and now - self.world_lost_at >= timeout:
+        elif self.world_lost.passed():
             print(f"fxswarm {self.role} {self.ident}: the world has been gone {timeout:g} s; giving up",
                   file=sys.stderr)
             self.stop("world lost")
@@ -227,6 +214,11 @@ class RoleProcess:
         self.ended = True
         self.bus.declare_token(topics.RUN_OVER)
         wait_until(self.bus, lambda: not any(n.startswith(waited_for) for n in self.alive), timeout)
+
+    def drained(self) -> bool:
+        """Lock-step, once the run is over: whether all this process hears of the run's last tick
+        has arrived (role-specific; :meth:`exit_with_world` waits up to ``DRAIN_S`` for it)."""
+        return True
 
     @property
     def exit_status(self) -> int:
@@ -248,10 +240,9 @@ class RoleProcess:
         if self.ended:
             return
         if not self.lockstep:
-            now = time.monotonic()
             if msg.role == "world":
-                self.clock.observe(msg.t, now)
-            if self.clock.known and self.clock.now() - msg.t > self.stale_after:
+                self.clock.observe(msg.t)
+            if self.clock.is_stale(msg.t):
                 self.bus.counters.stale += 1
         elif self.is_late(msg):
             self.bus.counters.stale += 1
@@ -324,15 +315,17 @@ def run_event_loop(proc: RoleProcess, on_idle=None, step: float = 0.1) -> None:
         proc.exit_with_world()
 
 
-def run_periodic_loop(proc: RoleProcess, period_wall: float, act, act_early=None, patience: float = 1.5) -> None:
-    """Real time: call ``act()`` every ``period_wall`` s, delivering messages in between.
+def run_periodic_loop(proc: RoleProcess, pacer: Pacer, act, act_early=None, act_keeps_time: bool = False) -> None:
+    """Real time: call ``act()`` whenever ``pacer`` says it is due, delivering messages in between.
 
-    Zero-order hold: ``act`` works on whatever the node holds. ``act_early()``
-    (checked after each batch of messages) lets fresh data trigger the act at
-    once (e.g. an agent's new sensing); the timer then waits ``patience``
-    periods, so it only fires when fresh data is late (acting on the timer
-    just before the data arrives would do the work twice). A late loop does
-    not burst to catch up: it acts once and goes on.
+    The decisions are the pacer's (:class:`~fxswarm.core.pacing.Pacer`: deadlines, no burst
+    after a late act, ``patience`` after an early one); this loop only waits for its next
+    deadline, feeds messages and publishes. Zero-order hold: ``act`` works on whatever the
+    node holds. ``act_early()`` (checked after each delivered message) lets fresh data
+    trigger the act at once (e.g. an agent's new sensing). ``act_keeps_time``: ``act()``
+    records itself on ``pacer`` (the world's :meth:`~fxswarm.world.node.RealTimeWorld.tick`
+    chooses between an act on time and a hold), so the loop must not record it a second
+    time: that would push every deadline one more period away and halve the rate.
 
     Unless a fault filter must release delayed messages between batches, Zenoh's
     callback threads run the handlers as messages arrive (``poll(stay=True)``),
@@ -341,26 +334,24 @@ def run_periodic_loop(proc: RoleProcess, period_wall: float, act, act_early=None
     neither waits for its main thread to wake.
     """
     stay = not hasattr(proc.node, "poll")
-    due = time.monotonic()
 
     def act_if_early() -> bool:
-        nonlocal due
         if act_early is None or not act_early():
             return False
         act()
-        due = time.monotonic() + patience * period_wall
+        pacer.acted_early()
         return True
 
     if act_early is not None:
         proc.after_deliver = act_if_early  # after every delivered message, on whichever thread
     while not proc.stopping:
-        left = due - time.monotonic()
-        proc.bus.poll(min(left, 0.1) if left > 0 else 0, stay=stay and not proc.gone)
+        left = pacer.wait_s()
+        proc.bus.poll(min(left, 0.1), stay=stay and not proc.gone)
         proc.publish(getattr(proc.node, "poll", lambda: [])())  # delayed messages now due (faults)
-        now = time.monotonic()
         # act_if_early again: messages a fault filter released just now bypassed deliver.
-        if not act_if_early() and now >= due:
+        if not act_if_early() and pacer.due():
+            if not act_keeps_time:
+                pacer.on_time()
             act()
-            due = due + period_wall if now - due < period_wall else now + period_wall
         proc.check_parent()
         proc.exit_with_world()

@@ -20,11 +20,15 @@ per key.
 from __future__ import annotations
 
 import argparse
+import functools
+import json
+import os
 import queue
 import sys
 import threading
 import time
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Callable
 
 import zenoh
@@ -33,6 +37,7 @@ from fxswarm.core import bus as topics
 from fxswarm.core.bus import Counters, Handler
 from fxswarm.core.messages import Clock, Command, Estimate, LeaderState, Message, Sense, WireError, WorldState, decode, encode
 from fxswarm.runtime.numbers import non_negative, positive_int
+from fxswarm.runtime.tls import SECURE_ENV, TlsFiles, checked, load_access, session_rules, tls_endpoints
 
 AliveHandler = Callable[[str, bool], None]  # (``role/id``, up?)
 
@@ -49,7 +54,9 @@ class ZenohOptions:
     ``fxswarm run`` starts: peers meet at the router instead, and a multicast
     mesh does not scale, notes/zenoh.md);
     lease_ms: how long a silent (e.g. frozen) session stays alive to others;
-    connect_timeout_ms: how long ``open`` waits for its router (-1: forever).
+    connect_timeout_ms: how long ``open`` waits for its router (-1: forever);
+    tls: secure mode's files (mutual TLS on ``tls/`` endpoints; docs/security.md), or None;
+    access: secure mode, a mesh peer: the swarm's rules file, which it enforces on its direct links.
     """
 
     mode: str = "peer"
@@ -58,6 +65,8 @@ class ZenohOptions:
     multicast: bool = True
     lease_ms: int | None = None
     connect_timeout_ms: int = 30_000
+    tls: TlsFiles | None = None
+    access: Path | None = None
 
     def config(self) -> zenoh.Config:
         if self.mode not in MODES:
@@ -72,6 +81,10 @@ class ZenohOptions:
         conf.insert_json5("scouting/multicast/enabled", "true" if self.multicast else "false")
         if self.lease_ms is not None:
             conf.insert_json5("transport/link/tx/lease", str(int(self.lease_ms)))
+        if self.tls is not None:
+            self.tls.insert_into(conf, listen=bool(self.listen))
+            rules = session_rules(self.mode, load_access(self.access) if self.access is not None else None)
+            conf.insert_json5("access_control", json.dumps(rules))
         return conf
 
     def as_args(self) -> list[str]:
@@ -84,11 +97,21 @@ class ZenohOptions:
         out.append("--multicast" if self.multicast else "--no-multicast")
         if self.lease_ms is not None:
             out += ["--lease-ms", str(self.lease_ms)]
+        if self.tls is not None:
+            out += ["--secure", str(self.tls.ca.parent)]  # each child takes its own pair from the folder
+        if self.access is not None:
+            out += ["--access", str(self.access)]
         return out
 
 
 def _json_list(items) -> str:
     return "[" + ",".join(f'"{x}"' for x in items) + "]"
+
+
+def log_zenoh_warnings() -> None:
+    """Zenoh's own warnings (e.g. a TLS handshake refused) to stderr, the process's log; once per
+    process, and ``RUST_LOG`` wins."""
+    zenoh.init_log_from_env_or("warn")
 
 
 class ConnectError(RuntimeError):
@@ -149,6 +172,13 @@ def add_zenoh_arguments(p: argparse.ArgumentParser, default_swarm: str = "defaul
                    help="session lease: how fast a frozen process is seen as gone")
     g.add_argument("--connect-timeout", type=non_negative, default=30.0, metavar="S",
                    help="a client: how long to wait for its router before giving up (default 30; 0: forever)")
+    g.add_argument("--secure", default=os.environ.get(SECURE_ENV) or None, metavar="KEYS",
+                   help="secure mode: the keys folder of `fxswarm keys` (this process uses its own certificate "
+                        "and key from it); tls/ endpoints only, a client of the router or a mesh peer "
+                        f"(docs/security.md; default ${SECURE_ENV})")
+    g.add_argument("--access", default=None, metavar="FILE",
+                   help="secure mesh peer: the swarm's access rules it enforces on its direct links "
+                        "(default KEYS/access.json)")
 
 
 _ZENOH_FIELDS = {"swarm": str, "mode": str, "connect": list, "listen": list, "multicast": bool, "lease_ms": int,
@@ -178,8 +208,14 @@ def zenoh_table(table, source: str = "<scenario>") -> dict:
 
 
 def options_from_args(args: argparse.Namespace, table: dict | None = None,
-                      source: str = "<scenario>") -> tuple[str, ZenohOptions]:
-    """(swarm, options) from the command line, falling back to a scenario's ``[zenoh]`` table."""
+                      source: str = "<scenario>", identity: str | None = None) -> tuple[str, ZenohOptions]:
+    """(swarm, options) from the command line, falling back to a scenario's ``[zenoh]`` table.
+
+    With ``--secure KEYS``: ``identity``'s files from KEYS, checked (a
+    :class:`~fxswarm.runtime.tls.KeyFileError`, a ValueError, names the file), ``tls/``
+    endpoints only, and the process either a client of the router (which enforces the
+    swarm's rules) or a mesh peer that enforces them on its own links too (docs/security.md).
+    """
     table = zenoh_table(table, source)
     swarm = args.swarm or table.get("swarm") or "default"
     mode = args.mode or table.get("mode") or "peer"
@@ -188,7 +224,35 @@ def options_from_args(args: argparse.Namespace, table: dict | None = None,
     multicast = args.multicast if args.multicast is not None else table.get("multicast", mode == "peer")
     lease = args.lease_ms if args.lease_ms is not None else table.get("lease_ms")
     wait_ms = int(args.connect_timeout * 1000) if args.connect_timeout > 0 else -1
-    return swarm, ZenohOptions(mode, connect, listen, bool(multicast), lease, wait_ms)
+    tls = access = None
+    if getattr(args, "secure", None):
+        mode, listen, multicast = _secure_shape(args, connect, listen)
+        tls = checked(args.secure, identity or "observer", server=mode == "peer")
+        if mode == "peer":
+            access = Path(getattr(args, "access", None) or Path(args.secure) / "access.json")
+            load_access(access)  # a missing or broken rules file is named now, not at open
+    elif getattr(args, "access", None):
+        raise ValueError("--access: rules go by certificate, give --secure KEYS too")
+    return swarm, ZenohOptions(mode, connect, listen, bool(multicast), lease, wait_ms, tls, access)
+
+
+def _secure_shape(args, connect: tuple, listen: tuple) -> tuple[str, tuple, bool]:
+    """Secure mode's (mode, listen, multicast): a client of the router, or a mesh peer that meets
+    the others at the router and listens for their links on ``tls/`` only; nothing in plaintext,
+    no multicast (who is in the swarm comes from the router)."""
+    mode = args.mode or "client"
+    if mode not in ("client", "peer"):
+        raise ValueError(f"--mode {mode}: secure mode runs a process as a client of the router or as a mesh "
+                         f"peer (docs/security.md)")
+    if not connect:
+        raise ValueError("--secure: give the router's endpoint, --connect tls/HOST:PORT")
+    tls_endpoints(connect, "--connect")
+    if mode == "client" and listen:
+        raise ValueError("--listen: a secure client listens on nothing (its router does)")
+    if mode == "peer":
+        listen = listen or ("tls/127.0.0.1:0",)
+        tls_endpoints(listen, "--listen")
+    return mode, listen, False
 
 
 # --- who may say what ----------------------------------------------------------------------
@@ -200,23 +264,42 @@ def check_sender(topic: str, msg: Message) -> None:
     ``world/sense/3`` carries a world Sense for robot 3, ``agent/3/estimate`` an
     Estimate signed by robot 3, and so on: a stranger cannot speak for a robot.
     """
-    parts = topic.split("/")
-    if parts[0] == "world" and len(parts) == 3 and parts[1] == "sense":
-        ok = isinstance(msg, Sense) and msg.role == "world" and str(msg.robot) == parts[2]
-    elif parts[0] == "agent" and len(parts) == 3:
-        kind = {"estimate": Estimate, "cmd": Command}.get(parts[2])
-        ok = (kind is not None and isinstance(msg, kind) and msg.role == "agent"
-              and str(msg.robot) == parts[1] and msg.sender == msg.robot)
-    elif topic == topics.LEADER_STATE:
-        ok = isinstance(msg, LeaderState) and msg.role == "leader"
-    elif topic == topics.CLOCK:
-        ok = isinstance(msg, Clock) and msg.role == "world"
-    elif topic == topics.WORLD_STATE:
-        ok = isinstance(msg, WorldState) and msg.role == "world"
-    else:
-        ok = True  # topics of other roles (e.g. a logger's) are theirs to check
-    if not ok:
+    rule = _sender_rule(topic)
+    if rule is None:
+        return  # topics of other roles (e.g. a logger's) are theirs to check
+    kind, role, robot, signed = rule
+    if not (type(msg) is kind or isinstance(msg, kind)) or msg.role != role or (
+            robot is not None and (msg.robot != robot or (signed and msg.sender != robot))):
         raise WireError(f"a {type(msg).__name__} from {msg.role}:{msg.sender} does not belong on {topic!r}")
+
+
+class _Nobody:
+    """The kind of message a key promises when no message can belong on it."""
+
+
+@functools.lru_cache(maxsize=4096)
+def _sender_rule(topic: str) -> tuple[type | tuple[type, ...], str, int | None, bool] | None:
+    """What ``topic`` promises, parsed once per key (a message costs a dict look-up, not a split):
+    (message class, sender's role, robot id or None, whether the sender must be that robot);
+    None: not ours to check. A robot id must be written as ``str(id)`` writes it."""
+    parts = topic.split("/")
+    robot = None
+    if len(parts) == 3 and parts[0] in ("world", "agent"):
+        chunk = parts[2] if parts[0] == "world" else parts[1]
+        robot = int(chunk) if chunk.isdigit() and str(int(chunk)) == chunk else -1  # -1: matches nobody
+    if parts[0] == "world" and len(parts) == 3 and parts[1] == "sense":
+        return Sense, "world", robot, False
+    if parts[0] == "agent" and len(parts) == 3:
+        # A robot's first estimate goes on its command key (later ones ride on its commands).
+        kind = {"estimate": Estimate, "cmd": (Command, Estimate)}.get(parts[2], _Nobody)
+        return kind, "agent", robot, True
+    if topic == topics.LEADER_STATE:
+        return LeaderState, "leader", None, False
+    if topic == topics.CLOCK:
+        return Clock, "world", None, False
+    if topic == topics.WORLD_STATE:
+        return WorldState, "world", None, False
+    return None
 
 
 # --- the bus -------------------------------------------------------------------------------
@@ -230,7 +313,8 @@ class ZenohBus:
     """One Zenoh session of one process, with the :class:`~fxswarm.core.bus.Bus` interface."""
 
     def __init__(self, swarm: str, options: ZenohOptions, validate: bool = True, drop_when_congested: bool = False,
-                 batch: bool = False, who: str = "fxswarm", on_wait: Callable[[], None] | None = None) -> None:
+                 batch: bool = False, who: str = "fxswarm", on_wait: Callable[[], None] | None = None,
+                 direct: bool | None = None) -> None:
         """``drop_when_congested``: publish with Zenoh's DROP congestion control instead of BLOCK.
 
         Lock-step needs every message (BLOCK); in real time a message is worth less than
@@ -240,7 +324,7 @@ class ZenohBus:
         ``batch``: publish without Zenoh's ``express`` flag, so messages sent back to back
         (the lock-step world's 8 per tick) may share a write: lock-step paper-fast spent
         ~15 % less CPU per tick; in real time it added 0.5-2 ms to the median
-        sense-to-command latency, so real time keeps ``express`` (docs/DESIGN.md).
+        sense-to-command latency, so real time keeps ``express`` (docs/design.md "Transport cost").
 
         ``who`` names the process in what :func:`open_session` says or raises; ``on_wait`` is
         its hook between attempts to reach a router.
@@ -252,6 +336,7 @@ class ZenohBus:
         self.root = topics.prefix(swarm)
         self.counters = Counters()
         self.validate = validate
+        self.direct = direct if direct is not None else os.environ.get("FXSWARM_DIRECT_CALLBACKS", "0") == "1"
         self._inbox: queue.SimpleQueue = queue.SimpleQueue()
         # poll(stay=True) in progress: callbacks may dispatch on their own thread, one at a
         # time (the gate); _failed carries a handler's exception back to the polling thread.
@@ -293,11 +378,22 @@ class ZenohBus:
         """
         cut = len(self.root) + 1
         tag = _RAW if raw else handler
+        arrive = self._arrive
 
-        def on_sample(sample, handler=handler) -> None:  # a Zenoh callback thread
-            self._arrive((handler, str(sample.key_expr)[cut:], sample.payload.to_bytes(), tag))
+        if "*" in pattern or "$" in pattern:
+            def on_sample(sample, handler=handler) -> None:  # a Zenoh callback thread
+                arrive((handler, str(sample.key_expr)[cut:], sample.payload.to_bytes(), tag))
+        else:  # one key: its samples' key is the pattern (no key expression turned into a str each)
+            def on_sample(sample, handler=handler, topic=pattern) -> None:
+                arrive((handler, topic, sample.payload.to_bytes(), tag))
 
-        self._subscribers.append(self.session.declare_subscriber(f"{self.root}/{pattern}", on_sample))
+        self._subscribers.append(self.session.declare_subscriber(f"{self.root}/{pattern}", self._callback(on_sample)))
+
+    def _callback(self, fn):
+        """``fn`` as a subscriber's callback: run by Zenoh's receiving thread itself when
+        :attr:`direct`, else (zenoh-python's default) handed to a Python thread of the
+        subscriber's own, one thread wake-up more per message."""
+        return zenoh.handlers.Callback(fn, indirect=False) if self.direct else fn
 
     def declare_alive(self, role: str, ident: int | str) -> None:
         self.declare_token(topics.alive_topic(role, ident))
@@ -323,7 +419,7 @@ class ZenohBus:
             put((handler, str(sample.key_expr)[skip:], sample.kind == zenoh.SampleKind.PUT, _ALIVE))
 
         self._subscribers.append(self.session.liveliness().declare_subscriber(
-            f"{self.root}/{pattern}", on_change, history=True))
+            f"{self.root}/{pattern}", self._callback(on_change), history=True))
 
     def wake(self) -> None:
         """Make a blocked :meth:`poll` return now (safe from a signal handler and from a handler)."""

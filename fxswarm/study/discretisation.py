@@ -9,6 +9,10 @@ the leader keeps moving, so no step of this information pattern can do better
 (``hops`` = the largest graph distance from a robot to a pinned robot, plus one
 for the leader link).
 
+Each case may also set the estimator's ``tracking`` (``"feedforward"``: the leader's velocity
+observed and fed forward, docs/estimator.md), which removes the hop-dependent lag that sets
+Euler's floor on long graphs.
+
 Floors are measured without obstacles unless a case keeps them: the paper's
 obstacles sit where the second half of ``paper.toml`` passes them, and an
 avoidance episode is not a discretisation floor.
@@ -39,11 +43,6 @@ def leader_speed_max(sc: Scenario) -> float:
     return float(max(np.linalg.norm(sc.leader.velocity(x)) for x in t[:: max(1, len(t) // 2000)]))
 
 
-def floor_limit(sc: Scenario) -> float:
-    """The lower limit ``hops * dt * |dp0/dt|`` of the estimate floor, m."""
-    return graph_hops(sc) * sc.dt * leader_speed_max(sc)
-
-
 def case_toml(
     raw: dict,
     discretisation: str,
@@ -51,10 +50,13 @@ def case_toml(
     duration: float | None = None,
     climb: float | None = None,
     obstacles: bool = False,
+    tracking: str | None = None,
 ) -> dict:
     """A copy of scenario TOML ``raw`` with the study's knobs set (None = keep the scenario's)."""
     out = copy.deepcopy(raw)
     out["controller"] = dict(out.get("controller", {}), discretisation=discretisation)
+    if tracking is not None:
+        out["estimator"] = dict(out.get("estimator", {}), tracking=tracking)
     if dt is not None:
         out["scenario"]["dt"] = float(dt)
     if duration is not None:
@@ -70,7 +72,7 @@ def case_toml(
 
 def run_floor_case(raw: dict, source: str, series: str) -> dict:
     """Run one case; its floors, settle times and the lower limit (one row of the benchmark JSON)."""
-    from fxswarm.runtime.sim import Simulation  # in the (spawned) worker
+    from fxswarm.launch.sim import Simulation  # in the (spawned) worker
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ScenarioWarning)
@@ -85,6 +87,7 @@ def run_floor_case(raw: dict, source: str, series: str) -> dict:
         "series": series,
         "source": source,
         "discretisation": sc.discretisation,
+        "tracking": sc.tracking,
         "dt": sc.dt,
         "duration_s": sc.duration,
         "obstacles": len(sc.obstacles),
@@ -93,6 +96,7 @@ def run_floor_case(raw: dict, source: str, series: str) -> dict:
         "hops": hops,
         "floor_limit_m": hops * sc.dt * speed,
         "floors_m": floors(traj),
+        "final_estimate_errors_m": [float(x) for x in np.linalg.norm(traj["ph"][-1] - traj["p0"][-1], axis=1)],
         "settle_s": settle_times(sc, traj),
         "avoidance_episodes": len(summary["avoidance_episodes"]),
         "wall_s": time.perf_counter() - start,

@@ -1,9 +1,10 @@
 """``fxswarm sweep CONFIG --scales 1,10,...,100000 --out DIR``: settling time against initial error.
 
-For every controller variant (:mod:`fxswarm.study.variants`) and every scale
+For every controller variant (:mod:`fxswarm.study.variants`; ``<variant>+feedforward``
+runs it with the leader-velocity feedforward of docs/estimator.md) and every scale
 factor, the scenario's initial errors (each robot's displacement from its slot
 and its estimate's error) are multiplied by the factor and the swarm is run
-in-process (:class:`fxswarm.runtime.sim.Simulation`), the cases in parallel
+in-process (:class:`fxswarm.launch.sim.Simulation`), the cases in parallel
 over the machine's cores (spawned worker processes). ``DIR/sweep.json`` gets
 one row per case: initial errors, measured settling times
 (:mod:`fxswarm.study.measure`) and the analytic figures beside them; the
@@ -49,12 +50,13 @@ from fxswarm.core.bounds import (
     settling_time_limit,
 )
 from fxswarm.core.control import BehaviourGains
+from fxswarm.core.observer import oriented_settling_bound
 from fxswarm.core.scenario import DISCRETISATIONS, VARIANTS, Scenario, ScenarioWarning
 from fxswarm.runtime.numbers import positive, positive_int
 from fxswarm.runtime.output import prepare_run_folder
 from fxswarm.study.measure import initial_errors, settle_times
 from fxswarm.study.parallel import parallel_map
-from fxswarm.study.variants import case_toml, parse_case
+from fxswarm.study.variants import SWEEP_VARIANTS, case_toml, parse_case
 
 DEFAULT_SCALES = (1.0, 10.0, 100.0, 1000.0, 10000.0, 100000.0)
 
@@ -88,7 +90,14 @@ def initial_estimate_errors(sc: Scenario) -> np.ndarray:
 def case_bounds(sc: Scenario, e0: float) -> dict:
     """The analytic figures reported beside one case's measurements (s; None = infinite)."""
     tol = sc.settle_tolerance
-    return {
+    observer = {}
+    if sc.observer is not None:  # feedforward: the velocity observer settles first (docs/estimator.md)
+        if sc.observer_graph == "oriented":
+            t_v = oriented_settling_bound(sc.a, sc.b, sc.observer)
+        else:  # eq. (obs) on the undirected graph is eq. (11) on velocities
+            t_v = estimator_bound_derived(sc.H, sc.observer)
+        observer = {"observer_bound_s": _finite(t_v)}
+    return observer | {
         "formation_bound_s": _finite(fixed_time_bound(sc.formation)),
         "formation_limit_s": _finite(settling_time_limit(sc.formation)),
         "formation_exact_s": _finite(formation_exact_time(e0, tol, sc.formation)),
@@ -102,7 +111,8 @@ def case_bounds(sc: Scenario, e0: float) -> dict:
 def case_duration(sc: Scenario, e0: float, max_duration: float) -> float:
     """A run long enough for this case's upper bounds to pass, s (see the module docstring)."""
     b = case_bounds(sc, e0)
-    longest = max(b["formation_exact_s"] or max_duration, b["estimator_derived_from_initial_s"] or max_duration)
+    estimator = (b["estimator_derived_from_initial_s"] or max_duration) + (b.get("observer_bound_s") or 0.0)
+    longest = max(b["formation_exact_s"] or max_duration, estimator)
     return float(min(max_duration, math.ceil(1.25 * longest + 10.0)))
 
 
@@ -115,7 +125,7 @@ def _finite(x: float) -> float | None:
 
 def run_case(raw: dict, source: str, variant: str, scale: float) -> dict:
     """Parse and run one case; return its ``sweep.json`` row."""
-    from fxswarm.runtime.sim import Simulation  # imported in the worker, after spawn
+    from fxswarm.launch.sim import Simulation  # imported in the worker, after spawn
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ScenarioWarning)  # the parent reports the base scenario's warnings
@@ -134,6 +144,7 @@ def run_case(raw: dict, source: str, variant: str, scale: float) -> dict:
         "duration_s": sc.duration,
         "dt": sc.dt,
         "discretisation": sc.discretisation,
+        "tracking": sc.tracking,
         # x axis of the report's figure: the formation task's initial error (the largest of the three)
         "initial_error_m": init["formation_task_m"],
         "initial_errors_m": init,
@@ -193,7 +204,7 @@ def plan(
 def run_sweep(cases: list[tuple[dict, str, str, float]], workers: int, progress=None) -> list[dict]:
     """Run the cases on ``workers`` spawned processes; rows ordered by variant, then scale."""
     rows = parallel_map(run_case, cases, workers, progress)
-    order = {v: k for k, v in enumerate(VARIANTS)}
+    order = {v: k for k, v in enumerate(SWEEP_VARIANTS)}
     return sorted(rows, key=lambda r: (order.get(r["variant"], 99), r["scale"]))
 
 
@@ -221,9 +232,9 @@ def claims(rows: list[dict]) -> dict:
         out["fixed_time_formation_bound_s"] = bound
         out["fixed_time_formation_below_bound"] = None not in worst and bound is not None and max(worst) < bound
         out["fixed_time_estimator_growth_1e4_to_1e5"] = ratio("fixed-time", "estimate_settle_s", 1e4, 1e5)
-    for variant in ("asymptotic", "finite-time", "fixed-time"):
+    for variant in ("asymptotic", "finite-time", "fixed-time") + SWEEP_VARIANTS[len(VARIANTS):]:
         if any(r["variant"] == variant for r in rows):
-            key = variant.replace("-", "_")
+            key = variant.replace("-", "_").replace("+", "_")
             out[f"{key}_formation_growth_1_to_1e5"] = ratio(variant, "formation_settle_s", 1.0, 1e5)
             out[f"{key}_estimator_growth_1_to_1e5"] = ratio(variant, "estimate_settle_s", 1.0, 1e5)
     within = [r["estimate_settle_s"] <= r["bounds"]["estimator_derived_from_initial_s"]
@@ -260,7 +271,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", help="scenario file (TOML) with fixed-time gains; the other variants derive from it")
     p.add_argument("--scales", default=",".join(f"{s:g}" for s in DEFAULT_SCALES),
                    help="factors applied to the initial displacement and estimate error (default: %(default)s)")
-    p.add_argument("--variants", default=",".join(VARIANTS), help="controller variants (default: %(default)s)")
+    p.add_argument("--variants", default=",".join(VARIANTS),
+                   help="controller variants (default: %(default)s); each also as <variant>+feedforward "
+                        "(estimator tracking = \"feedforward\", docs/estimator.md)")
     p.add_argument("--out", default=None, help="folder for sweep.json and the figure (default: runs/<name>-sweep)")
     p.add_argument("--dt", type=positive, default=None, help="control period, s (default: the scenario's)")
     p.add_argument("--duration", type=positive, default=None,
@@ -282,14 +295,14 @@ def _parse_list(text: str, kind, what: str) -> list:
 
 
 def main(args: argparse.Namespace) -> int:
-    from fxswarm.runtime.sim_cli import load_or_exit
+    from fxswarm.runtime.config import load_or_exit
 
     base = load_or_exit(args.config)
     scales = _parse_list(args.scales, float, "scales")
     variants = _parse_list(args.variants, str, "variants")
-    bad = [v for v in variants if v not in VARIANTS]
+    bad = [v for v in variants if v not in SWEEP_VARIANTS]
     if bad or not scales or any(s <= 0 for s in scales):
-        print(f"fxswarm sweep: expected --variants from {', '.join(VARIANTS)} and --scales > 0", file=sys.stderr)
+        print(f"fxswarm sweep: expected --variants from {', '.join(SWEEP_VARIANTS)} and --scales > 0", file=sys.stderr)
         return 2
     if base.variant != "fixed-time" or base.estimator_variant != "fixed-time":
         print(f"fxswarm sweep: {args.config}: the variants derive from fixed-time gains; this scenario "
@@ -313,6 +326,7 @@ def main(args: argparse.Namespace) -> int:
         "duration_s": args.duration or "per case, from its bounds", "max_duration_s": args.max_duration,
         "settle_tolerance_m": base.settle_tolerance, "avoidance": args.avoidance,
         "discretisation": args.discretisation or base.discretisation, "power": base.estimator.power,
+        "tracking": {v: ("feedforward" if v.endswith("+feedforward") else base.tracking) for v in variants},
         "workers": args.workers, "wall_s": time.perf_counter() - start,
     }
     doc = sweep_document(base, args.config, rows, settings)

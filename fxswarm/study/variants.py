@@ -14,6 +14,10 @@ differ only in exponents, so each is a choice of gains (SPEC sections 2, 6):
   finite time, but that time grows like a power of the initial error
   (``T ~ rho0^(1 - r1*r0) / (1 - r1*r0)`` for the behaviours).
 
+Each variant also comes as ``<variant>+feedforward`` (:data:`SWEEP_VARIANTS`): the same
+gains with ``[estimator] tracking = "feedforward"`` (fxswarm.core.observer, docs/estimator.md),
+the leader's velocity observed and fed forward in the estimator.
+
 Building the variant as TOML and parsing it again (rather than patching a
 ``Scenario``) keeps ``Scenario.raw`` consistent and runs the variant's own
 validation (``fxswarm.core.scenario.BEHAVIOUR_CONDITIONS``).
@@ -26,6 +30,19 @@ import copy
 import numpy as np
 
 from fxswarm.core.scenario import VARIANTS, Scenario, parse
+
+#: Suffix of a sweep variant that runs the estimator with ``tracking = "feedforward"``.
+FEEDFORWARD_SUFFIX = "+feedforward"
+#: Every variant a sweep can run: the controller variants, then each with feedforward tracking.
+SWEEP_VARIANTS = VARIANTS + tuple(v + FEEDFORWARD_SUFFIX for v in VARIANTS)
+
+
+def split_variant(name: str) -> tuple[str, str]:
+    """``(controller variant, estimator tracking)`` of a sweep variant name."""
+    if name.endswith(FEEDFORWARD_SUFFIX):
+        return name[: -len(FEEDFORWARD_SUFFIX)], "feedforward"
+    return name, "paper"
+
 
 #: Effective large-error exponent of the finite-time variant (``r1*r0`` and ``r3/r4``):
 #: close enough to 1 that the sweep's largest scales settle in a few minutes of simulated time.
@@ -54,8 +71,12 @@ def variant_gains(gains: dict, variant: str) -> dict:
 
 
 def variant_toml(raw: dict, variant: str, discretisation: str | None = None) -> dict:
-    """A deep copy of scenario TOML ``raw`` running ``variant`` (behaviours and estimator alike)."""
+    """A deep copy of scenario TOML ``raw`` running ``variant`` (behaviours and estimator alike;
+    a ``+feedforward`` suffix sets ``[estimator] tracking = "feedforward"``)."""
+    variant, tracking = split_variant(variant)
     out = copy.deepcopy(raw)
+    if tracking != "paper":
+        out["estimator"] = dict(out.get("estimator", {}), tracking=tracking)
     out["gains"] = variant_gains(raw["gains"], variant)
     controller = dict(out.get("controller", {}))
     controller["variant"] = variant

@@ -1,0 +1,437 @@
+"""The agent node: one robot's distributed estimator and behavioural control, sans I/O.
+
+It takes messages (its own sensing, its graph neighbours' estimates, the
+leader if pinned) and returns messages to send (its velocity command to the
+world, carrying its estimate for its neighbours: they read ``agent/<j>/cmd``;
+docs/design.md "Crossings per tick"). No transport, no clock, no
+sleep: the runners drive it in lock-step or in real time. In real time the
+runner calls :meth:`AgentNode.act_realtime` with the simulation time when
+the schedule (``fxswarm.core.pacing.Pacer``) or :meth:`AgentNode.fresh_sensing`
+says so; every decision on time (what to integrate, what is stale, when to
+extrapolate, when to stop) is made here from the time stamps it is given.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Collection
+
+import numpy as np
+
+from fxswarm.agents.links import InLinks
+from fxswarm.core import bus as topics
+from fxswarm.core.control import ControlParameters, robot_control
+from fxswarm.core.messages import Command, Estimate, LeaderState, Message, Sense
+from fxswarm.core.observer import observer_weights, velocity_observer_rate
+from fxswarm.core.scenario import Scenario
+from fxswarm.faults.plan import DegradedLimits, degraded_limits
+
+# Degraded modes, reported to the world in Command.flags (bit set) and counted per robot.
+FLAG_STALE_NEIGHBOUR = 1  # a neighbour silent longer than the staleness limit left the sums
+FLAG_NO_LEADER = 2  # pinned, but the leader is silent: the estimator runs on neighbours alone
+FLAG_EXTRAPOLATING = 4  # hears nobody: the estimate moves with the last estimated leader velocity
+FLAG_NO_SENSING = 8  # no sensing for longer than the limit: commands zero velocity
+FLAG_NAMES = {FLAG_STALE_NEIGHBOUR: "stale_neighbour", FLAG_NO_LEADER: "no_leader",
+              FLAG_EXTRAPOLATING: "extrapolating", FLAG_NO_SENSING: "no_sensing"}
+#: Time constant (s) of the running mean of the estimate's rate used as the leader's velocity
+#: when extrapolating: the sign term makes the raw rate chatter by +-K3 per axis.
+LEADER_VELOCITY_TAU_S = 1.0
+
+
+class AgentNode:
+    """Robot ``robot_id``'s node.
+
+    Lock-step: once it holds ``Estimate(k)`` from every neighbour and, if
+    pinned, ``LeaderState(k)``, it computes ``Command(k)``, steps its estimate
+    by ``dt`` (explicit Euler, SPEC section 7) and sends the command with
+    ``Estimate(k + 1)`` riding on it. On a ``Sense(k)`` whose estimate it has
+    not sent yet (the first tick, or after a tick it skipped) it sends
+    ``Estimate(k)`` alone, on its command key.
+    Real time: :meth:`act` computes on whatever it holds, whenever called.
+    """
+
+    def __init__(self, scenario: Scenario, robot_id: int, lockstep: bool = True,
+                 limits: DegradedLimits | None = None) -> None:
+        self.sc = scenario
+        self.id = robot_id
+        self.lockstep = lockstep
+        robot = scenario.robots[robot_id - 1]
+        self.offset = robot.offset
+        self.ph = np.array(robot.estimate, dtype=float)
+        self.neighbour_ids = scenario.neighbours(robot_id)
+        self.pinned = scenario.is_pinned(robot_id)
+        weights = [scenario.a[robot_id - 1, j - 1] for j in self.neighbour_ids]
+        if self.pinned:
+            weights.append(scenario.b[robot_id - 1])
+        self.weights = np.array(weights, dtype=float)
+        self._weight_list = self.weights.tolist()
+        self.law = ControlParameters(scenario.formation, scenario.avoidance, scenario.estimator, scenario.d,
+                                     scenario.v_max, semi_implicit=scenario.discretisation == "semi-implicit")
+        self._command_topic = topics.command_topic(robot_id)
+        self.sense: Sense | None = None
+        self.estimates: dict[int, Estimate] = {}  # latest held per neighbour (zero-order hold)
+        self.leader: LeaderState | None = None
+        self.acted_tick = -1
+        self.acted_t: float | None = None  # real time: the simulation time of the last act, s
+        # Lock-step pipelining: a robot sends its tick-(k+1) estimate as soon as it has acted on
+        # tick k (the estimate is final then), so neighbours hold it before tick k+1's sensing
+        # arrives; a neighbour's estimate for a tick after the one this robot acts on next waits
+        # in `ahead` until then (docs/design.md "Lock-step pipelining").
+        self.estimate_tick = -1  # the newest tick whose estimate this robot has sent
+        self.ahead: dict[int, list[Message]] = {}  # per neighbour (0: the leader): messages for later ticks
+        self.seq_said = 0  # one numbering for all this robot puts on its command key (link gaps, faults)
+        self.speed_limited = 0  # how often the optional speed limit bit
+        # Degraded modes (docs/design.md "Fault model"): limits, what was last really sensed, counts.
+        # The run's resolved plan's limits (its --fault overrides included); else the file's.
+        self.limits = limits if limits is not None else degraded_limits(scenario)
+        self.expects = None  # lock-step: expects(sender, tick) -> bool, set by a fault filter
+        self.sensed_t: float | None = None  # time of the last real (not replayed) sensing, s
+        self.since_sense_s = 0.0  # real time: seconds acted since the last sensing
+        self.compensate = scenario.delay_compensation == "leader-velocity"  # see _held_rows
+        self.v_leader = np.zeros(3)  # running mean of dph: the leader's velocity as estimated
+        self.v_extrapolate: np.ndarray | None = None  # while hearing nobody: the velocity used
+        # (t, ph, v_leader) of recent steps: extrapolation starts from the last step whose inputs
+        # were current, not from an estimate that spent the staleness window chasing held values.
+        self.history: deque = deque(maxlen=int(np.ceil(self.limits.staleness / scenario.dt)) + 8)
+        self.degraded_ticks = {name: 0 for name in FLAG_NAMES.values()}
+        # Link health as this robot sees it, reported in each Command (neighbours, then the leader).
+        self.in_links = InLinks(list(self.neighbour_ids) + ([0] if self.pinned else []))
+        # [estimator] tracking = "feedforward" (docs/estimator.md): the leader-velocity observer,
+        # eq. (obs), whose estimate vh travels with ph and is fed forward in the estimator, eq. (11ff),
+        # and in the formation behaviour, eq. (v2ff).
+        self.feedforward = scenario.tracking == "feedforward"
+        self.vh = np.zeros(3)  # estimate of the leader's velocity, m/s
+        if self.feedforward:  # the neighbours eq. (obs) listens to (upstream ones, if oriented), and weights
+            row = observer_weights(scenario.a, scenario.b, scenario.observer_graph)[robot_id - 1]
+            self.observer_links = [(j, float(row[j - 1])) for j in self.neighbour_ids if row[j - 1] > 0]
+
+    # --- wiring -------------------------------------------------------------------------
+
+    def subscriptions(self) -> list[str]:
+        """The only topics this robot hears: locality is the point of the paper. A neighbour's
+        estimate rides on its command (``agent/<j>/cmd``)."""
+        subs = [topics.sense_topic(self.id)] + [topics.command_topic(j) for j in self.neighbour_ids]
+        if self.pinned:
+            subs.append(topics.LEADER_STATE)
+        return subs
+
+    def handle(self, topic: str, msg: Message) -> list[topics.Outgoing]:
+        """Take one message; return what to send because of it."""
+        out: list[topics.Outgoing] = []
+        if type(msg) is Command:  # a neighbour's: the estimate it carries, if any
+            msg = msg.carried_estimate()
+            if msg is None:
+                return out
+        if isinstance(msg, Sense):
+            if msg.robot != self.id:
+                return out
+            if self.sense is not None and msg.tick < self.sense.tick:
+                return out  # an old sensing message overtaken by a newer one
+            self.sense = msg
+            if not getattr(msg, "replayed", False):
+                self.sensed_t, self.since_sense_s = msg.t, 0.0
+            if self.lockstep:
+                if self.ahead:
+                    self._take_ahead(msg.tick)
+                if self.estimate_tick < msg.tick:  # not sent after the last act (first tick, or a skipped one)
+                    out.append(self.estimate_message(msg.tick, msg.t))
+        elif isinstance(msg, Estimate):
+            if msg.robot in self.neighbour_ids and msg.robot != self.id:
+                self.in_links.heard(msg.robot, msg.seq, msg.tick)
+                self._take(msg.robot, msg)
+        elif isinstance(msg, LeaderState):
+            if self.pinned:
+                self.in_links.heard(0, msg.seq, msg.tick)
+                self._take(0, msg)
+        if self.lockstep and self.ready():
+            out += self.act_tick()
+        return out
+
+    def next_tick(self) -> int:
+        """Lock-step: the tick this robot acts on next (the one after its last act, or a later
+        sensing's if the world moved on without it)."""
+        return max(self.acted_tick + 1, self.sense.tick if self.sense is not None else 0)
+
+    def _take(self, j: int, msg: Estimate | LeaderState) -> None:
+        """A neighbour's estimate (``j``: its id) or the leader's state (``j`` = 0): held now, or,
+        in lock-step, kept in ``ahead`` if it is for a tick after the one this robot acts on next
+        (sent a tick early: pipelined)."""
+        if self.lockstep and msg.tick > self.next_tick():
+            self.ahead.setdefault(j, []).append(msg)
+        else:
+            self._hold(j, msg)
+
+    def _hold(self, j: int, msg: Estimate | LeaderState) -> None:
+        """Hold ``msg`` as sender ``j``'s latest (0: the leader), unless a newer one is held."""
+        held = self.leader if j == 0 else self.estimates.get(j)
+        if held is None or msg.tick >= held.tick:
+            if j == 0:
+                self.leader = msg
+            else:
+                self.estimates[j] = msg
+
+    def _take_ahead(self, upto: int) -> None:
+        """Hold each neighbour's (and, key 0, the leader's) newest waiting message for a tick up
+        to ``upto``."""
+        for j, waiting in list(self.ahead.items()):
+            due = [m for m in waiting if m.tick <= upto]
+            if not due:
+                continue
+            self._hold(j, max(due, key=lambda m: m.tick))
+            rest = [m for m in waiting if m.tick > upto]
+            if rest:
+                self.ahead[j] = rest
+            else:
+                del self.ahead[j]
+
+    def act_tick(self) -> list[topics.Outgoing]:
+        """Lock-step: act on the current tick ``k``; return the command and the tick-``k+1``
+        estimate (final now: the estimator has stepped), sent at once so it is not on the next
+        tick's critical path."""
+        k = self.sense.tick + 1
+        last = k >= self.sc.ticks  # the run's last tick: no next one to estimate for
+        cmd = self.act(self.sc.dt, None if last else (k, k * self.sc.dt))
+        if self.ahead:
+            self._take_ahead(k)
+        if not last:
+            self.estimate_tick = k
+        return [cmd]
+
+    def waiting_for(self, tick: int) -> list[str]:
+        """Senders whose tick-``tick`` message this agent still lacks (lock-step)."""
+        missing = [f"agent:{j}" for j in self.neighbour_ids
+                   if (h := self.estimates.get(j)) is None or h.tick < tick]
+        if self.pinned and (self.leader is None or self.leader.tick < tick):
+            missing.append("leader")
+        if self.expects is not None:  # a fault filter knows these will not come this tick
+            missing = [m for m in missing if self.expects(m, tick)]
+        return missing
+
+    def is_late(self, msg: Message) -> bool:
+        """Lock-step: whether ``msg`` is for a tick older than the sensing held (counted stale)."""
+        s = self.sense
+        if type(msg) is Command:  # a neighbour's: its carried estimate's tick (none on the last tick)
+            return s is not None and msg.est_tick is not None and msg.est_tick < s.tick
+        return s is not None and isinstance(msg, (Sense, Estimate, LeaderState)) and msg.tick < s.tick
+
+    def act_past_the_gone(self, gone: Collection[str]) -> list[topics.Outgoing]:
+        """Lock-step: act on the current tick now if every sender it still waits for is in
+        ``gone`` (names as :meth:`waiting_for` gives them: ``"agent:<id>"``, ``"leader"``) -
+        their processes have left and will not answer; the robot acts on what it last heard."""
+        s = self.sense
+        if s is None or self.acted_tick >= s.tick:
+            return []
+        missing = self.waiting_for(s.tick)
+        if missing and all(m in gone for m in missing):
+            return self.act_tick()
+        return []
+
+    def ready(self) -> bool:
+        """Lock-step: whether this robot holds everything it expects for its current tick."""
+        s = self.sense
+        if s is None or s.tick <= self.acted_tick:
+            return False
+        k = s.tick
+        if self.expects is not None:
+            return not self.waiting_for(k)
+        for j in self.neighbour_ids:
+            held = self.estimates.get(j)
+            if held is None or held.tick < k:
+                return False
+        return not self.pinned or (self.leader is not None and self.leader.tick >= k)
+
+    # --- messages out -------------------------------------------------------------------
+
+    def estimate_message(self, tick: int, t: float) -> topics.Outgoing:
+        """The current estimate alone, for a tick with no command to carry it (on the command key)."""
+        self.seq_said += 1
+        msg = Estimate("agent", self.id, self.seq_said, tick, t, self.id, self.ph.copy(),
+                       self.vh.copy() if self.feedforward else None)
+        return self._command_topic, msg
+
+    def held_estimates(self, fresh_by: float = -np.inf, now: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The estimates this robot holds, shape (m, 3), neighbours in ascending id then the
+        leader (``ph_0 := p0``), with their weights ``a_ij`` / ``b_i``, shape (m,).
+        Those sent before ``fresh_by`` (s) are stale and left out; given the robot's time ``now``
+        (s), older ones are carried forward to it (:meth:`_held_rows`)."""
+        rows, weights, _, _ = self._held_rows(fresh_by, now)
+        return np.array(rows, dtype=float).reshape(-1, 3), np.array(weights, dtype=float)
+
+    def _held_rows(self, fresh_by: float, now: float | None) -> tuple[list[list[float]], list[float], bool, bool]:
+        """:meth:`held_estimates` as lists, and whether a neighbour / the (pinned) leader is
+        missing or stale: one pass over the holds (the agent's per-tick hot path).
+
+        Delay compensation (``[controller] delay_compensation = "leader-velocity"``, the
+        default): a held value stamped ``t`` < ``now`` is carried forward by ``now - t`` at the
+        leader's velocity as this robot estimates it (:attr:`v_leader`). Every estimate tracks
+        the leader, so that is where it has moved since it was sent. Without it, each hop adds
+        its delay times the leader's speed to the lag, compounded over the graph (docs/design.md
+        "Delay compensation"). Lock-step without faults holds only current values: no change.
+        """
+        rows: list[list[float]] = []
+        weights: list[float] = []
+        stale_neighbour = False
+        held = self.estimates
+        v = self.leader_velocity().tolist() if self.compensate and now is not None else None
+        for j, w in zip(self.neighbour_ids, self._weight_list):
+            h = held.get(j)
+            if h is None or h.t < fresh_by:
+                stale_neighbour = True
+            else:
+                rows.append(h.ph.tolist() if v is None or h.t >= now else _carried(h.ph, now - h.t, v))
+                weights.append(w)
+        no_leader = False
+        if self.pinned:
+            leader = self.leader
+            if leader is None or leader.t < fresh_by:
+                no_leader = True
+            else:
+                rows.append(leader.p0.tolist() if v is None or leader.t >= now
+                            else _carried(leader.p0, now - leader.t, v))
+                weights.append(self._weight_list[-1])
+        return rows, weights, stale_neighbour, no_leader
+
+    def act(self, dt: float, estimate_at: tuple[int, float] | None = None) -> topics.Outgoing:
+        """Compute the command from what is held, step the estimate by ``dt``, return the command;
+        with ``estimate_at`` = (tick, t s), it carries the stepped estimate for that tick and time."""
+        s = self.sense
+        assert s is not None, "act() before any sensing"
+        now = s.t if self.lockstep else (self.sensed_t if self.sensed_t is not None else s.t) + self.since_sense_s
+        fresh_by = now - self.limits.staleness - 1e-9  # heard before this: stale (s)
+        rows, weights, stale_neighbour, no_leader = self._held_rows(fresh_by, now)
+        hears = len(weights) > 0
+        feedforward = self.vh.tolist() if self.feedforward else None  # eq. (11ff)
+        if not hears and self.v_extrapolate is None:
+            self._start_extrapolating(now)
+        p_i0, dp_i0 = self.offset.state_lists(s.t)
+        v, dph, _, avoid_active, limited = robot_control(
+            s.p.tolist(), self.ph.tolist(), rows, weights, p_i0, dp_i0,
+            None if s.po is None else s.po.tolist(), None if s.vo is None else s.vo.tolist(), self.law, dt,
+            dph=None if hears else self.v_extrapolate.tolist(),  # hearing nobody: extrapolate
+            feedforward=feedforward,  # eqs. (11ff), (v2ff)
+        )
+        flags = self._degraded_flags(stale_neighbour, no_leader, hears, now)
+        if hears:
+            gain = min(1.0, dt / LEADER_VELOCITY_TAU_S)
+            vl = self.v_leader.tolist()
+            self.v_leader = np.array([vl[0] + gain * (dph[0] - vl[0]), vl[1] + gain * (dph[1] - vl[1]),
+                                      vl[2] + gain * (dph[2] - vl[2])])
+            self.v_extrapolate = None
+        self.history.append((now, self.ph, self.leader_velocity()))
+        vh_used = self.vh
+        if self.feedforward:
+            self.vh = self._observer_step(fresh_by, dt)
+        if flags & FLAG_NO_SENSING:
+            v = [0.0, 0.0, 0.0]  # blind for too long: stop rather than fly on old sensing
+        self.speed_limited += limited
+        ph_used = self.ph
+        ph = ph_used.tolist()
+        self.ph = np.array([ph[0] + dt * dph[0], ph[1] + dt * dph[1], ph[2] + dt * dph[2]])  # explicit Euler (SPEC 7)
+        self.acted_tick = s.tick
+        self.seq_said += 1
+        if not self.lockstep:
+            self.since_sense_s += dt
+        est_tick, est_t, est_ph, est_vh = None, None, None, None
+        if estimate_at is not None:  # self.ph, self.vh: new arrays, never changed in place
+            (est_tick, est_t), est_ph, est_vh = estimate_at, self.ph, self.vh if self.feedforward else None
+        cmd = Command("agent", self.id, self.seq_said, s.tick, s.t, self.id, np.array(v), ph_used, avoid_active,
+                      flags, self.link_ages(now), tuple(self.in_links.drops), vh_used if self.feedforward else None,
+                      est_tick, est_t, est_ph, est_vh)
+        return self._command_topic, cmd
+
+    def fresh_sensing(self) -> bool:
+        """Real time: whether sensing newer than the last act is held (act on it at once)."""
+        return self.sense is not None and self.sense.tick > self.acted_tick
+
+    def act_realtime(self, now: float) -> list[topics.Outgoing]:
+        """Real time: act at simulation time ``now`` (s) on what is held (zero-order hold),
+        integrating the time since the last act (one period for the first); return the command
+        and the new estimate. Nothing before any sensing, or if time has not moved since the
+        last act (a second act on the same sensing would integrate nothing)."""
+        if self.sense is None or (self.acted_t is not None and now <= self.acted_t):
+            return []
+        dt = self.sc.dt if self.acted_t is None else now - self.acted_t
+        self.acted_t = now
+        return [self.act(dt, (self.sense.tick, now))]
+
+    # --- tracking = "feedforward": the leader-velocity observer (fxswarm.core.observer) --------
+
+    def leader_velocity(self) -> np.ndarray:
+        """The leader's velocity as this robot knows it (m/s, (3,)): what delay compensation
+        carries late values forward at and what extrapolation moves the estimate at. The
+        observer's ``vh`` with feedforward (it converges to ``dp0/dt`` in fixed time); else the
+        running mean of the estimate's rate (the paper's estimator has no better)."""
+        return self.vh if self.feedforward else self.v_leader
+
+    def _observer_step(self, fresh_by: float, dt: float) -> np.ndarray:
+        """``vh`` after one explicit Euler step of eq. (obs) over ``dt`` (s), on the velocity
+        estimates held from its observer links (upstream neighbours, if oriented) and the
+        leader's velocity if pinned. Values sent before ``fresh_by`` (s) are stale and left out,
+        as in the position estimator; late ones are used as they are (a velocity changes
+        slowly). Hearing none of them, ``vh`` holds."""
+        rows: list[list[float]] = []
+        weights: list[float] = []
+        for j, w in self.observer_links:
+            h = self.estimates.get(j)
+            if h is not None and h.t >= fresh_by and h.vh is not None:
+                rows.append(h.vh.tolist())
+                weights.append(w)
+        leader = self.leader
+        if self.pinned and leader is not None and leader.t >= fresh_by and leader.v0 is not None:
+            rows.append(leader.v0.tolist())
+            weights.append(self._weight_list[-1])
+        vh = self.vh.tolist()
+        rate = velocity_observer_rate(vh, rows, weights, self.sc.observer)
+        return np.array([vh[0] + dt * rate[0], vh[1] + dt * rate[1], vh[2] + dt * rate[2]])  # eq. (obs), Euler
+
+    def link_ages(self, now: float) -> tuple[int, ...]:
+        """Per in-link (neighbours in ascending id, then the leader): how many ticks old the held
+        message is at ``now`` (s); with nothing held, ticks since tick -1. Lock-step: the sensing's
+        tick less the held message's (the same, in integers: every node times tick k at k * dt)."""
+        held = [self.estimates.get(j) for j in self.neighbour_ids]
+        if self.pinned:
+            held.append(self.leader)
+        if self.lockstep:  # per act, per robot: plain integer arithmetic
+            k = self.sense.tick
+            return tuple([k + 1 if h is None else (k - h.tick if h.tick < k else 0) for h in held])
+        dt = self.sc.dt
+        return tuple(round(now / dt) + 1 if h is None else max(0, round((now - h.t) / dt)) for h in held)
+
+    def _start_extrapolating(self, now: float) -> None:
+        """Hearing nobody from ``now`` (s) on: go back to the step at the newest input's time and
+        carry that estimate forward at that step's estimated leader velocity."""
+        inputs = [h.t for h in self.estimates.values()] + ([self.leader.t] if self.leader is not None else [])
+        newest = max(inputs, default=None)
+        start = None
+        if newest is not None:
+            start = next((e for e in reversed(self.history) if e[0] <= newest + 1e-9), None)
+        if start is None:
+            self.v_extrapolate = self.leader_velocity()
+            return
+        t0, ph0, v0 = start
+        self.v_extrapolate = v0
+        self.ph = ph0 + (now - t0) * v0
+
+    def _degraded_flags(self, stale_neighbour: bool, no_leader: bool, hears: bool, now: float) -> int:
+        """The degraded modes of this step (``FLAG_*`` bits), counted in ``degraded_ticks``.
+        ``stale_neighbour``/``no_leader``: from :meth:`_held_rows`."""
+        flags = 0
+        if stale_neighbour:
+            flags |= FLAG_STALE_NEIGHBOUR
+        if no_leader:
+            flags |= FLAG_NO_LEADER
+        if not hears:
+            flags |= FLAG_EXTRAPOLATING
+        if self.sensed_t is None or now - self.sensed_t > self.limits.sense_timeout + 1e-9:
+            flags |= FLAG_NO_SENSING
+        if flags:
+            for bit, name in FLAG_NAMES.items():
+                if flags & bit:
+                    self.degraded_ticks[name] += 1
+        return flags
+
+
+def _carried(x: np.ndarray, age: float, v: list[float]) -> list[float]:
+    """``x`` carried forward by ``age`` s at velocity ``v``, as a list."""
+    x0, x1, x2 = x.tolist()
+    return [x0 + age * v[0], x1 + age * v[1], x2 + age * v[2]]

@@ -1,0 +1,73 @@
+"""``summary.json``: the one builder every runner uses (``fxswarm sim``, the world process of
+``fxswarm run`` and of a compose run, and the launcher that outlives it).
+
+It lives in the faults layer, the lowest one that sees both the trajectory metrics
+(:mod:`fxswarm.core.metrics`) and the fault plan. A runner passes what only it knows
+through the parameters; the keys it adds are listed in ``docs/`` with the rest.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fxswarm.core.metrics import summarise
+from fxswarm.core.scenario import Scenario
+from fxswarm.faults.plan import FaultPlan
+from fxswarm.faults.report import fault_summary
+
+LINK_COUNTS = ("delivered", "dropped", "delayed", "duplicated")
+
+
+def build_summary(sc: Scenario, traj: dict[str, np.ndarray], plan: FaultPlan, *, wall_s: float,
+                  world=None, links: dict[str, dict[str, int]] | None = None,
+                  restarts: dict[str, int] | None = None, runner: dict | None = None,
+                  processes: dict[str, dict] | None = None, process_events: list[dict] | None = None) -> dict:
+    """The run's summary, as a dict ready for JSON.
+
+    traj: the world's trajectory (arrays keyed as in ``trajectory.npz``); wall_s: the run's
+    wall time, s; world: the world node (its degraded-mode counts), None if not at hand;
+    links: per-link fault counts counted in this process (``"src->dst/kind"`` ->
+    delivered/dropped/delayed/duplicated); restarts: ``"agent:<id>"`` -> restarts seen in
+    this process; runner: the runner's own top-level facts (e.g. ``clock``,
+    ``missed_ticks``, ``counters``), added after the common metrics. processes and
+    process_events: see :func:`add_processes`.
+    """
+    summary = summarise(sc, traj, wall_s)
+    summary.update(runner or {})
+    summary.update(fault_summary(sc, plan, traj, world, dict(links or {}), restarts))
+    if processes is not None:
+        add_processes(summary, processes, process_events)
+    return summary
+
+
+def add_processes(summary: dict, processes: dict[str, dict], process_events: list[dict] | None = None) -> dict:
+    """Put the role processes' counters into ``summary`` (in place; returned too).
+
+    processes: ``"<role>-<id>"`` -> that process's counters file. Their per-link fault counts
+    (each process counts its own inbox) are summed into ``faults.links``, replacing the
+    in-process counts. process_events: the process faults a launcher sent, ``{action, target,
+    t_s}`` in time order; they become ``faults.process_events`` and, counted, ``faults.restarts``
+    (as ``fxswarm sim`` counts its stand-ins' restarts).
+    """
+    summary["processes"] = processes
+    faults = summary.setdefault("faults", {})
+    faults["links"] = merged_links(processes)
+    if process_events:
+        faults["process_events"] = list(process_events)
+        restarts: dict[str, int] = {}
+        for e in process_events:
+            if e["action"] == "restart":
+                restarts[e["target"]] = restarts.get(e["target"], 0) + 1
+        faults["restarts"] = restarts
+    return summary
+
+
+def merged_links(processes: dict[str, dict]) -> dict[str, dict[str, int]]:
+    """The processes' per-link counts summed, sorted by link."""
+    merged: dict[str, dict[str, int]] = {}
+    for counters in processes.values():
+        for key, c in (counters.get("links") or {}).items():
+            m = merged.setdefault(key, dict.fromkeys(LINK_COUNTS, 0))
+            for name in LINK_COUNTS:
+                m[name] += int(c.get(name, 0))
+    return dict(sorted(merged.items()))

@@ -1,0 +1,321 @@
+"""``fxswarm attach ENDPOINT --swarm NAME --out DIR``: observe a running swarm from anywhere.
+
+A Zenoh client of the swarm's router (e.g. ``tcp/node1:7447``, the port a
+stack publishes) that does the logger's work remotely: it takes every
+``world/state`` of the run, shows progress, and when the world ends the run
+(its ``run/over`` token) writes into ``DIR``, on this machine:
+
+* ``trajectory.npz`` rebuilt from the world's states (the arrays the world
+  itself saves, ``fxswarm.world.node.WorldNode.trajectory``);
+* ``summary.json`` from it (:func:`fxswarm.core.metrics.summarise`, as ``fxswarm
+  run`` and ``sim`` write it), plus what only an observer knows: states
+  missed, and which processes went and came back, the logger included (a
+  dead logger is reported, not silent);
+* ``recording.rrd`` (and any ``--rerun`` output: ``web`` or ``grpc`` is a
+  live viewer attached the same way), when Rerun is installed
+  (``fxswarm[logger]``).
+
+The scenario comes from ``--config`` or, without it, from the router
+(``fxswarm router --scenario``; a stack's router serves it) into
+``DIR/scenario.toml``. It declares the liveliness token
+``alive/observer/0`` (``--name``): a world started with ``--wait-for
+observer/0`` starts its clock only once the observer listens, so nothing of
+the run is missed.
+
+Secure mode (``--secure KEYS``): a client of the router over mutual TLS only
+(``tls/`` endpoint), showing the ``observer`` certificate from KEYS, whose
+rights are exactly what this needs: hear ``world/state``, watch liveliness,
+ask the router for the scenario, declare ``alive/observer/<id>``
+(docs/security.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import signal
+import socket
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from fxswarm.core import bus as topics
+from fxswarm.core.messages import WorldState
+from fxswarm.core.metrics import summarise
+from fxswarm.core.scenario import Scenario
+from fxswarm.runtime.output import prepare_run_folder, write_run
+from fxswarm.runtime.tls import SECURE_ENV, checked
+from fxswarm.runtime.zenoh_bus import ConnectError, ZenohBus, ZenohOptions
+from fxswarm.world.node import nearest_objects
+
+SCENARIO_KEY = topics.SCENARIO  # under the swarm's prefix: the scenario file's text, from the router
+#: Secure mode: the certificate attach shows (its rights: docs/security.md, fxswarm.security.policy).
+IDENTITY = "observer"
+PROGRESS_EVERY_S = 2.0
+SETTLE_S = 1.0  # after run/over: states still in flight
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("endpoint", help="the swarm's router, e.g. tcp/127.0.0.1:7447")
+    p.add_argument("--swarm", required=True, help="swarm name (the key-expression prefix)")
+    p.add_argument("--out", required=True, metavar="DIR", help="run folder to write here")
+    p.add_argument("--config", default=None, help="scenario file (default: ask the router for it)")
+    p.add_argument("--name", default="observer/0", metavar="ROLE/ID",
+                   help="liveliness name this observer declares (default observer/0)")
+    p.add_argument("--rerun", default="file", metavar="OUTPUTS",
+                   help="Rerun outputs as `fxswarm logger --rerun` takes them (default file: DIR/recording.rrd); "
+                        "none: no recording")
+    p.add_argument("--timeout", type=float, default=600.0, metavar="S",
+                   help="give up after S s without the router, the scenario or the end of the run (default 600)")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--secure", default=os.environ.get(SECURE_ENV) or None, metavar="KEYS",
+                   help=f"secure swarm: keys folder of `fxswarm keys` (this uses its {IDENTITY}.pem/.key and "
+                        f"ca.pem); ENDPOINT must be tls/HOST:PORT (docs/security.md; default ${SECURE_ENV})")
+
+
+class Observer:
+    """The run as the world's states tell it: arrays by tick, plus who came and went."""
+
+    def __init__(self, sc: Scenario) -> None:
+        self.sc = sc
+        n, ticks = sc.n, sc.ticks
+        self.seen = np.zeros(ticks, dtype=bool)
+        self.t = np.arange(ticks) * sc.dt
+        self.p = np.zeros((ticks, n, 3))
+        self.ph = np.zeros((ticks, n, 3))
+        self.v = np.zeros((ticks, n, 3))
+        self.near = np.full((ticks, n), np.inf)
+        self.near_obstacle = np.full((ticks, n), np.inf)
+        self.avoid = np.zeros((ticks, n), dtype=bool)
+        self.obstacles: list[np.ndarray | None] = [None] * ticks
+        self.last_tick = -1
+        self.last_t = 0.0
+        self.alive: set[str] = set()
+        self.ever: set[str] = set()
+        self.gone_at: dict[str, list[int]] = {}  # role/id -> the last tick seen when its token went
+        self.back: dict[str, int] = {}  # role/id -> times it came back after that
+        self.run_over = False
+
+    def take(self, msg: WorldState) -> None:
+        k = msg.tick
+        if not 0 <= k < self.sc.ticks or self.seen[k]:
+            return
+        self.seen[k] = True
+        self.p[k], self.ph[k], self.v[k] = msg.p, msg.ph, msg.v
+        self.near[k] = np.where(msg.nearest < 0, np.inf, msg.nearest)  # the world sends inf as -1
+        self.avoid[k] = msg.avoid
+        obstacles = np.asarray(msg.obstacles, dtype=float).reshape(-1, 3)
+        self.obstacles[k] = obstacles
+        # Not on the wire: the distance to the nearest obstacle alone, as the world computes it.
+        self.near_obstacle[k] = nearest_objects(msg.p, msg.v, obstacles, np.zeros_like(obstacles))[4]
+        if k > self.last_tick:
+            self.last_tick, self.last_t = k, msg.t
+
+    def on_alive(self, name: str, up: bool) -> None:
+        if up:
+            if name in self.ever and name not in self.alive:
+                self.back[name] = self.back.get(name, 0) + 1
+            self.alive.add(name)
+            self.ever.add(name)
+        elif name in self.alive:
+            self.alive.discard(name)
+            if not self.run_over:  # judged in deaths(): the world's last states may still be on their way
+                self.gone_at.setdefault(name, []).append(self.last_tick)
+
+    def deaths(self) -> dict[str, int]:
+        """role/id -> times it went during the run. Everyone leaves once the world ends the run,
+        and those departures can reach us before the world's last states and its run/over token:
+        a departure counts only if the process came back after it, or if the world went on
+        ticking for a second of simulation time after it."""
+        grace = max(1, math.ceil(1.0 / self.sc.dt))
+        out = {}
+        for name, ticks in self.gone_at.items():
+            n = sum(1 for i, k in enumerate(ticks)
+                    if i < self.back.get(name, 0) or self.last_tick - k > grace)
+            if n:
+                out[name] = n
+        return out
+
+    def on_run_over(self, _topic: str, up: bool) -> None:
+        if up:
+            self.run_over = True
+
+    def trajectory(self) -> dict[str, np.ndarray]:
+        """The ticks from 0 to the last one seen (rows of missed ticks stay zero; counted)."""
+        k = self.last_tick + 1
+        sc = self.sc
+        t = self.t[:k]
+        m = max((len(o) for o in self.obstacles[:k] if o is not None), default=0)
+        obstacles = np.zeros((k, m, 3))
+        for i, o in enumerate(self.obstacles[:k]):
+            if o is not None and len(o) == m:
+                obstacles[i] = o
+        return {
+            "t": t, "p": self.p[:k], "ph": self.ph[:k],
+            "p0": np.array([sc.leader.position(x) for x in t]).reshape(-1, 3),
+            "v": self.v[:k], "nearest_distance": self.near[:k], "obstacle_distance": self.near_obstacle[:k],
+            "avoid_active": self.avoid[:k], "obstacles": obstacles,
+            "offsets": np.stack([r.offset.positions(t) for r in sc.robots], axis=1).reshape(-1, sc.n, 3),
+        }
+
+    def summary(self, wall_s: float) -> dict:
+        out = summarise(self.sc, self.trajectory(), wall_s)
+        k = self.last_tick + 1
+        missed = int(k - self.seen[:k].sum())
+        logger_seen = "logger/0" in self.ever
+        deaths = self.deaths()
+        out.update(
+            observed_by="fxswarm attach",
+            complete=self.run_over and k == self.sc.ticks and missed == 0,
+            states_missed=missed,
+            # role/id -> [times gone during the run, times back]: e.g. a killed agent task and its replacement
+            restarts={name: [n, self.back.get(name, 0)] for name, n in sorted(deaths.items())},
+            logger={"seen": logger_seen, "died": deaths.get("logger/0", 0) > 0,
+                    "alive_at_end": "logger/0" in self.alive},
+        )
+        return out
+
+
+def fetch_scenario(bus: ZenohBus, out: Path, deadline: float) -> Path:
+    """The scenario file's text as the router serves it, saved to ``out/scenario.toml``."""
+    key = f"{bus.root}/{SCENARIO_KEY}"
+    while time.monotonic() < deadline:
+        for reply in bus.session.get(key, timeout=2.0):
+            if reply.ok is not None:
+                path = out / "scenario.toml"
+                path.write_bytes(reply.ok.payload.to_bytes())
+                return path
+        time.sleep(0.5)
+    raise SystemExit(f"fxswarm attach: no scenario from the router at {key} (start it with --scenario, "
+                     "or pass --config)")
+
+
+def zenoh_options(args: argparse.Namespace) -> ZenohOptions:
+    """A client of the router at ``args.endpoint``; with ``--secure``, over mutual TLS with the
+    observer's key, checked now (raises ValueError naming the file or the endpoint)."""
+    tls = None
+    if args.secure:
+        if not args.endpoint.startswith("tls/"):
+            raise ValueError(f"ENDPOINT {args.endpoint}: a secure swarm's router takes tls/HOST:PORT only")
+        role, _, ident = args.name.partition("/")
+        if role != IDENTITY or "/" in ident:
+            # The rules let the observer's key declare alive/observer/<id> only: another token would be dropped.
+            raise ValueError(f"--name {args.name}: with the {IDENTITY} certificate, {IDENTITY}/<id> only")
+        tls = checked(args.secure, IDENTITY)
+    return ZenohOptions("client", (args.endpoint,), (), False, connect_timeout_ms=int(args.timeout * 1000), tls=tls)
+
+
+def listening(endpoint: str, timeout_s: float = 2.0) -> bool:
+    """Whether something accepts TCP at ``endpoint``'s address: Zenoh's error is the same for a
+    router that is not there and one that refused the handshake, and they need different fixes."""
+    host, _, port = endpoint.partition("/")[2].rpartition(":")
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s):
+            return True
+    except (OSError, ValueError):
+        return False
+
+
+def main(args: argparse.Namespace) -> int:
+    from fxswarm.runtime.config import load_or_exit
+
+    try:
+        options = zenoh_options(args)  # a bad key file: one line naming it, before any session or folder
+    except ValueError as exc:
+        print(f"fxswarm attach: --secure: {exc}" if args.secure else f"fxswarm attach: {exc}", file=sys.stderr)
+        return 2
+    out = prepare_run_folder(args.out, "fxswarm attach")
+    stop = {"signal": None}
+
+    def on_signal(signum, _frame) -> None:
+        stop["signal"] = signal.Signals(signum).name
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, on_signal)
+    deadline = time.monotonic() + args.timeout
+    try:
+        bus = ZenohBus(args.swarm, options, who="fxswarm attach")
+    except ConnectError as exc:
+        if options.tls is not None and listening(args.endpoint):
+            print(f"fxswarm attach: no session with the router at {args.endpoint}: it answers, but the TLS "
+                  f"handshake failed (are {options.tls.cert} and {options.tls.ca} of this swarm's "
+                  f"CA, not of another `fxswarm keys` run?); the router's log says why", file=sys.stderr)
+        else:
+            print(exc, file=sys.stderr)
+        return 1
+    recorder = None
+    try:
+        sc = load_or_exit(args.config or str(fetch_scenario(bus, out, deadline)))
+        obs = Observer(sc)
+        if args.rerun != "none":
+            recorder = open_recorder(sc, args.rerun, out, args.swarm)
+
+        def on_state(_topic: str, msg) -> None:
+            obs.take(msg)
+            if recorder is not None:
+                recorder.take(topics.WORLD_STATE, msg, time.monotonic())
+
+        bus.subscribe(topics.WORLD_STATE, on_state)
+        bus.watch_alive("*/*", obs.on_alive)
+        bus.watch_tokens(topics.RUN_OVER, obs.on_run_over)
+        role, _, ident = args.name.partition("/")
+        bus.declare_alive(role, ident or "0")
+        started = time.monotonic()
+        said = 0.0
+        settle_until = None
+        while stop["signal"] is None:
+            bus.poll(0.1)
+            now = time.monotonic()
+            if obs.run_over and settle_until is None:
+                settle_until = now + SETTLE_S
+            if settle_until is not None and now >= settle_until:
+                break
+            if obs.last_tick < 0 and now > deadline:
+                print(f"fxswarm attach: no state from the world of swarm {args.swarm!r} in {args.timeout:g} s",
+                      file=sys.stderr)
+                return 3
+            if not args.quiet and now - said >= PROGRESS_EVERY_S:
+                said = now
+                agents = sum(1 for n in obs.alive if n.startswith("agent/"))
+                print(f"fxswarm attach: t = {obs.last_t:6.2f} / {sc.duration:g} s, {agents}/{sc.n} agents alive, "
+                      f"logger {'up' if 'logger/0' in obs.alive else 'DOWN' if 'logger/0' in obs.ever else 'not seen'}",
+                      file=sys.stderr)
+        if obs.last_tick < 0:
+            print("fxswarm attach: stopped before the world sent anything; nothing written", file=sys.stderr)
+            return 1
+        summary = obs.summary(time.monotonic() - started)
+        write_run(out, summary, obs.trajectory())
+        print(f"fxswarm attach: wrote {out} ({obs.last_tick + 1} ticks, {summary['states_missed']} missed; "
+              f"formation error {summary['formation_error_final_m']:.3f} m, nearest object "
+              f"{summary['min_object_distance_m']} m)", file=sys.stderr)
+        if summary["logger"]["seen"] and summary["logger"]["died"]:
+            print("fxswarm attach: warning: the swarm's logger died during the run", file=sys.stderr)
+        return 0 if summary["complete"] else 1
+    finally:
+        if recorder is not None:
+            recorder.close(timeout_s=10.0)
+        bus.close()
+
+
+def open_recorder(sc: Scenario, spec: str, out: Path, swarm: str):
+    """The logger's recorder on this machine (needs ``fxswarm[logger]``), or None without Rerun."""
+    try:
+        from fxswarm.logger.recorder import RecorderOptions, SwarmRecorder
+        from fxswarm.logger.sinks import OutputError, open_recording, parse_outputs
+    except ModuleNotFoundError as exc:
+        print(f"fxswarm attach: no Rerun recording ({exc.name} is not installed: pip install 'fxswarm[logger]')",
+              file=sys.stderr)
+        return None
+    try:
+        outputs = parse_outputs(spec, out)
+    except OutputError as exc:
+        raise SystemExit(f"fxswarm attach: {exc}") from None
+    rec, said = open_recording(outputs, f"{sc.name}-{swarm}-attach")
+    for line in said:
+        print(f"fxswarm attach: {line}", file=sys.stderr)
+    recorder = SwarmRecorder(sc, rec, RecorderOptions.from_scenario(sc), wall_clock=time.monotonic)
+    recorder.start()
+    return recorder

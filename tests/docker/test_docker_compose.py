@@ -1,0 +1,471 @@
+"""The compose swarm on the real Docker engine: run, kill, disconnect, tear down.
+
+Every test here needs a Docker engine and a compose tool (``docker compose``
+or ``docker-compose``). Where none answers they skip and say why; where
+``FXSWARM_REQUIRE_DOCKER=1`` (``.ci/run`` sets it when ``docker info``
+answers) a skip becomes a failure, so CI cannot go green by skipping them.
+
+One set of images for the whole session: ``docker/build-images.sh`` (no
+registry: the base images by debootstrap + ``docker import`` + offline wheels,
+skipped when already there; then one slim image per role family, tag ``test``).
+Each compose project runs the top-level ``docker-compose.yml`` copied into a
+temporary folder (its ``./runs`` lands there), under a unique project name
+and swarm name, and is brought down in a finaliser even when a test fails.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import tempfile
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fxswarm.core.metrics import formation_errors
+from fxswarm.core.scenario import load
+from fxswarm.faults.plan import DegradedLimits
+
+from docker_support import TAG, compose_command, run as _run
+from support import PAPER_FAST, REPO
+
+# The first test also waits for the images (from a clean machine: ~4 min base image + ~1.5 min
+# project image) and a compose run: more than the suite's default 600 s may pass under load.
+pytestmark = [pytest.mark.docker, pytest.mark.timeout(1500)]
+
+SCENARIO = PAPER_FAST
+ROLES = ["router", "logger", "leader", *(f"agent-{i}" for i in range(1, 7)), "world"]
+
+
+# --- one compose project ---------------------------------------------------------------------
+
+
+class ComposeProject:
+    """The top-level docker-compose.yml, run from a temporary folder under a unique project name."""
+
+    def __init__(self, folder: Path, image: str, scenario_text: str | None = None, **variables: str) -> None:
+        self.folder = folder
+        scenario = SCENARIO
+        if scenario_text is not None:  # a variant of the scenario, mounted in place of it
+            scenario = folder / "scenario.toml"
+            scenario.write_text(scenario_text)
+        self.tool = compose_command()
+        self.name = f"fxtest{uuid.uuid4().hex[:10]}"
+        self.swarm = f"docker-{self.name}"
+        self.run_name = "run"
+        shutil.copy(REPO / "docker-compose.yml", folder / "docker-compose.yml")
+        (folder / "runs").mkdir()
+        (folder / "runs").chmod(0o777)  # the containers run as uid 10001, not as this user
+        self.env = {**os.environ, "FXSWARM_TAG": TAG, "FXSWARM_SWARM": self.swarm,
+                    "FXSWARM_SCENARIO": str(scenario), "FXSWARM_RUN": self.run_name,
+                    "FXSWARM_ROUTER_PUBLISH": "127.0.0.1:",  # an ephemeral host port
+                    **variables}
+        self.down_done = False
+
+    @property
+    def out(self) -> Path:
+        return self.folder / "runs" / self.run_name
+
+    def compose(self, *args: str, timeout: float = 120) -> str:
+        return _run([*self.tool, "-p", self.name, *args], timeout, f"compose {args[0]}", self.env, self.folder)
+
+    def up(self) -> None:
+        self.compose("up", "-d", "--no-build", timeout=600)  # waits for the logger: minutes at load 50
+
+    def container(self, service: str) -> str:
+        cid = self.compose("ps", "-a", "-q", service).strip()
+        assert cid, f"no container for service {service} in project {self.name}"
+        return cid.splitlines()[0]
+
+    def router_endpoint(self) -> str:
+        port = _run(["docker", "port", self.container("router"), "7447"], 30, "docker port").split(":")[-1]
+        return f"tcp/127.0.0.1:{int(port)}"
+
+    def network(self) -> str:
+        return f"{self.name}_default"
+
+    def wait_exit(self, service: str, timeout: float) -> int:
+        """Wait for ``service``'s container to stop; its exit code."""
+        return int(_run(["docker", "wait", self.container(service)], timeout, f"docker wait {service}").strip())
+
+    def state(self, service: str) -> dict:
+        return json.loads(_run(["docker", "inspect", "-f", "{{json .State}}", self.container(service)], 30,
+                               "docker inspect"))
+
+    def logs(self) -> str:
+        try:
+            return self.compose("logs", "--no-color", "--tail", "15", timeout=60)
+        except BaseException:  # noqa: BLE001 - logs only decorate a failure
+            return "(no logs)"
+
+    def down(self) -> None:
+        self.down_done = True
+        self.compose("down", "-v", "--remove-orphans", "--timeout", "5", timeout=180)
+
+    def leftovers(self) -> list[str]:
+        """Containers or networks of this project still on the engine."""
+        label = f"label=com.docker.compose.project={self.name}"
+        ids = _run(["docker", "ps", "-a", "-q", "--filter", label], 30, "docker ps").split()
+        nets = _run(["docker", "network", "ls", "-q", "--filter", label], 30, "docker network ls").split()
+        return [f"container {c}" for c in ids] + [f"network {n}" for n in nets]
+
+    def summary(self) -> dict:
+        path = self.out / "summary.json"
+        assert path.exists(), f"no {path}; the compose logs:\n{self.logs()}"
+        return json.loads(path.read_text())
+
+    def counters(self, process: str) -> dict:
+        return json.loads((self.out / "processes" / f"{process}.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def project_factory(role_images):
+    """Make compose projects; bring every one down at the end, whatever happened.
+
+    Each lives in a folder of its own under /tmp, not pytest's tmp_path: pytest keeps only
+    the last three sessions' folders, and a parallel session could delete a running one's runs.
+    """
+    made: list[ComposeProject] = []
+
+    def make(scenario_text: str | None = None, **variables: str) -> ComposeProject:
+        p = ComposeProject(Path(tempfile.mkdtemp(prefix="fxswarm-compose-")), role_images, scenario_text,
+                           **variables)
+        made.append(p)
+        return p
+
+    yield make
+    for p in made:
+        if not p.down_done or p.leftovers():
+            try:
+                p.down()
+            except BaseException:  # noqa: BLE001 - go on with the others
+                pass
+        if os.geteuid() != 0 and p.out.exists():  # files the containers (uid 10001) wrote
+            subprocess.run(["docker", "run", "--rm", "--user", "0", "--entrypoint", "chown", "-v", f"{p.folder}/runs:/r",
+                            role_images, "-R", f"{os.getuid()}:{os.getgid()}", "/r"], capture_output=True)
+        if os.environ.get("FXSWARM_KEEP_COMPOSE_RUNS") != "1":  # =1 keeps them to look at
+            shutil.rmtree(p.folder, ignore_errors=True)
+
+
+def wait_until(what: str, done, timeout: float, step: float = 0.2):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        value = done()
+        if value:
+            return value
+        time.sleep(step)
+    pytest.fail(f"timed out after {timeout:g} s waiting for {what}")
+
+
+# --- the paper scenario, lock-step: the outcome ------------------------------------------------
+
+
+@dataclass
+class FinishedRun:
+    project: ComposeProject
+    exit_codes: dict[str, int]
+    took_s: float
+
+
+@pytest.fixture(scope="module")
+def paper_run(project_factory) -> FinishedRun:
+    """``compose up`` of the paper scenario (lock-step) run to its end: every role exits by itself."""
+    p = project_factory(FXSWARM_CLOCK="lockstep")
+    start = time.monotonic()
+    p.up()
+    codes = {"world": p.wait_exit("world", 420)}
+    for role in ROLES:
+        if role not in ("router", "world"):  # they leave once the world is gone (liveliness)
+            codes[role] = p.wait_exit(role, 60)
+    return FinishedRun(p, codes, time.monotonic() - start)
+
+
+@pytest.mark.slow
+def test_compose_up_paper_runs_to_completion_with_the_paper_outcome(paper_run):
+    p = paper_run.project
+    assert paper_run.exit_codes == {r: 0 for r in paper_run.exit_codes}, p.logs()
+    s = p.summary()
+    print(f"compose run ({' '.join(p.tool)}): {paper_run.took_s:.0f} s from up to every role gone; world {s['ticks']} ticks in "
+          f"{s['wall_s']:.1f} s; {json.dumps({k: s[k] for k in ('min_object_distance_m', 'formation_error_final_m', 'estimate_error_final_m', 'estimate_settle_s')})}")
+    assert s["complete"] and s["clock"] == "lockstep" and s["missed_ticks"] == 0
+    assert s["min_object_distance_m"] >= 1.8
+    assert s["formation_error_final_m"] <= 0.15
+    assert s["estimate_error_final_m"] <= 0.15
+    assert s["estimate_settle_s"] is not None and s["estimate_settle_s"] <= 5
+    assert len(s["avoidance_episodes"]) >= 1
+    # The logger recorded the run into the mounted ./runs, and every process left its counters.
+    assert (p.out / "recording.rrd").stat().st_size > 100_000
+    assert {f.stem for f in (p.out / "processes").glob("*.json")} == \
+        {"world-0", "leader-0", "logger-0", *(f"agent-{i}" for i in range(1, 7))}
+
+
+@pytest.mark.slow
+def test_compose_lockstep_run_equals_the_in_process_simulator(paper_run):
+    """Containers change nothing: the same trajectory, bit for bit, as ``fxswarm sim``."""
+    from fxswarm.core.scenario import load
+    from fxswarm.launch.sim import Simulation
+
+    sim = Simulation(load(SCENARIO))
+    sim.run()
+    expected = sim.trajectory()
+    with np.load(paper_run.project.out / "trajectory.npz") as got:
+        assert sorted(got.files) == sorted(expected)
+        for key in expected:
+            assert np.array_equal(got[key], expected[key]), key
+
+
+@pytest.mark.slow
+def test_compose_down_leaves_nothing_running(paper_run):
+    p = paper_run.project
+    assert p.state("router")["Running"], "the router serves until compose down"
+    p.down()
+    assert p.leftovers() == []
+
+
+# --- the paper scenario in real time, broken from outside -------------------------------------
+
+
+@dataclass
+class FaultObservations:
+    """What a test-side Zenoh client (through the published router port) saw during the run."""
+
+    killed_at_t: float = 0.0  # simulation time of the docker kill, s
+    gone_after_s: float = 0.0  # wall time from the kill to agent/3's liveliness token gone
+    back_after_s: float = 0.0  # wall time from docker start to agent/3 alive again
+    rejoined_at_t: float = 0.0  # simulation time of agent 3's first command after its restart
+    cut_at_t: float = 0.0  # simulation time of the network disconnect of agent 5
+    cut_s: float = 0.0  # wall seconds agent 5 was off the network
+    silent_wall_s: float = 0.0  # longest wall gap between agent 5's commands reaching the observer
+    stalest_s: float = 0.0  # oldest (simulation s behind the swarm) a command of agent 5 arrived
+    resumed_at_t: float = 0.0  # simulation time of agent 5's first fresh command after the cut
+    alive_changes: list[tuple[str, bool]] = field(default_factory=list)
+    exit_codes: dict[str, int] = field(default_factory=dict)
+
+
+class Observer:
+    """A Zenoh client of the compose router: liveliness of the agents, their commands' times."""
+
+    def __init__(self, endpoint: str, swarm: str) -> None:
+        from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions
+
+        self.bus = ZenohBus(swarm, ZenohOptions("client", (endpoint,), (), False))
+        self.alive: set[str] = set()
+        self.changes: list[tuple[str, bool]] = []
+        # (arrival wall s, msg.t, age): age = the newest simulation time heard from anyone
+        # minus msg.t, i.e. how stale the command is when it reaches the observer, s.
+        self.cmds: dict[int, list[tuple[float, float, float]]] = {3: [], 5: []}
+        self.newest_t = 0.0
+        self.world_t = -1.0  # the world's own clock, from world/state (agents' commands lag it)
+        self.bus.watch_alive("agent/*", self._on_alive)
+        for robot in self.cmds:
+            self.bus.subscribe(f"agent/{robot}/cmd", self._on_cmd)
+        self.bus.subscribe("world/state", self._on_state)
+
+    def _on_alive(self, name: str, up: bool) -> None:
+        self.changes.append((name, up))
+        (self.alive.add if up else self.alive.discard)(name)
+
+    def _on_cmd(self, topic: str, msg) -> None:
+        self.newest_t = max(self.newest_t, msg.t)
+        self.cmds[msg.robot].append((time.monotonic(), msg.t, self.newest_t - msg.t))
+
+    def _on_state(self, topic: str, msg) -> None:
+        self.world_t = max(self.world_t, msg.t)
+
+    def latest_t(self, robot: int) -> float:
+        return self.cmds[robot][-1][1] if self.cmds[robot] else -1.0
+
+    def wait(self, what: str, done, timeout: float) -> None:
+        end = time.monotonic() + timeout
+        while not done():
+            if time.monotonic() > end:
+                pytest.fail(f"timed out after {timeout:g} s waiting for {what}")
+            self.bus.poll(0.05)
+
+    def close(self) -> None:
+        self.bus.close()
+
+
+#: How long agent 5 stays off the network, wall s (the fault itself, not a wait): well inside
+#: the Zenoh lease, so nobody gives it up; a cut past the lease is the last test of this file.
+CUT_S = 2.0
+FRESH_S = 0.2  # a command at most this far (simulation s) behind the swarm's newest is fresh
+REJOIN_SETTLE_S = 10.0  # simulation s a restarted robot gets to fly back into formation
+SILENT_HOLD_S = DegradedLimits.silent_hold  # the world holds a robot silent longer than this at zero velocity
+
+
+def flying_realtime_swarm(project_factory, duration: float) -> tuple[ComposeProject, Observer]:
+    """The paper scenario as a compose project in real time (speed 1), ``duration`` s long: up,
+    watched, every agent alive and robot 5 flying past t = 5 s."""
+    text = SCENARIO.read_text()
+    assert "duration = 40.0" in text
+    p = project_factory(text.replace("duration = 40.0", f"duration = {duration}"), FXSWARM_CLOCK="realtime",
+                        FXSWARM_SPEED="1")
+    p.up()
+    watcher = Observer(p.router_endpoint(), p.swarm)
+    try:
+        watcher.wait("all six agents alive", lambda: len(watcher.alive) == 6, 120)
+        watcher.wait("simulation time 5 s", lambda: watcher.latest_t(5) >= 5.0, 120)
+    except BaseException:
+        watcher.close()
+        raise
+    return p, watcher
+
+
+@pytest.fixture(scope="module")
+def broken_run(project_factory) -> tuple[ComposeProject, FaultObservations]:
+    """The paper scenario in real time (speed 1), 55 s instead of 40 (room for both faults and
+    the recovery from each on a loaded machine); agent 3 killed and started again, agent 5 cut
+    off the network for a few seconds; then run to its end."""
+    p, watcher = flying_realtime_swarm(project_factory, 55.0)
+    obs = FaultObservations()
+    try:
+        # docker kill: the process dies with its container; liveliness says so at once.
+        agent3 = p.container("agent-3")
+        _run(["docker", "kill", agent3], 30, "docker kill agent-3")
+        t0 = time.monotonic()
+        obs.killed_at_t = watcher.latest_t(5)
+        watcher.wait("agent/3 seen gone", lambda: "agent/3" not in watcher.alive, 30)
+        obs.gone_after_s = time.monotonic() - t0
+        heard = len(watcher.cmds[3])  # everything robot 3 said before it died
+        # The silence must outlast the world's silent hold on the world's own clock: agents'
+        # commands lag it (the real-time world goes on when a robot is late), so a fast docker
+        # start could otherwise bring robot 3 back before the world had flown the hold without it.
+        died_world_t = watcher.world_t
+        watcher.wait("the world flying on without robot 3 past its silent hold",
+                     lambda: watcher.world_t >= died_world_t + SILENT_HOLD_S + 0.2, 60)
+        t0 = time.monotonic()
+        _run(["docker", "start", agent3], 60, "docker start agent-3")
+        watcher.wait("agent/3 alive again", lambda: "agent/3" in watcher.alive, 90)
+        obs.back_after_s = time.monotonic() - t0
+        watcher.wait("a command from robot 3 after its restart", lambda: len(watcher.cmds[3]) > heard, 60)
+        obs.rejoined_at_t = watcher.cmds[3][heard][1]
+
+        # Give robot 3 time to close on its slot before the next fault (judged at the cut).
+        watcher.wait("10 s of flight after robot 3 rejoined",
+                     lambda: watcher.latest_t(5) >= obs.rejoined_at_t + REJOIN_SETTLE_S, 60)
+
+        # docker network disconnect: the container lives on, deaf and mute, for CUT_S seconds.
+        agent5 = p.container("agent-5")
+        heard = len(watcher.cmds[5])
+        obs.cut_at_t = watcher.latest_t(5)
+        t0 = time.monotonic()
+        _run(["docker", "network", "disconnect", p.network(), agent5], 30, "network disconnect")
+        end = time.monotonic() + CUT_S
+        while time.monotonic() < end:
+            watcher.bus.poll(0.05)
+        _run(["docker", "network", "connect", p.network(), agent5], 30, "network connect")
+        obs.cut_s = time.monotonic() - t0
+        reconnected = len(watcher.cmds[5])
+
+        def fresh_again() -> bool:
+            return any(age < FRESH_S for _, _, age in watcher.cmds[5][reconnected:])
+
+        watcher.wait("a fresh command from robot 5 after the reconnect", fresh_again, 60)
+        after = np.array(watcher.cmds[5][max(0, heard - 1):])
+        obs.silent_wall_s = float(np.diff(after[:, 0]).max())
+        obs.stalest_s = float(after[:, 2].max())
+        obs.resumed_at_t = next(t for _, t, age in watcher.cmds[5][reconnected:] if age < FRESH_S)
+        obs.alive_changes = list(watcher.changes)
+    finally:
+        watcher.close()
+    obs.exit_codes["world"] = p.wait_exit("world", 240)
+    return p, obs
+
+
+@pytest.mark.slow
+def test_docker_kill_and_start_of_an_agent_rejoins_the_swarm(broken_run):
+    p, obs = broken_run
+    print(f"kill at t = {obs.killed_at_t:.2f} s: seen gone after {obs.gone_after_s:.2f} s; docker start -> "
+          f"alive after {obs.back_after_s:.1f} s; first command again at t = {obs.rejoined_at_t:.2f} s")
+    assert obs.gone_after_s < 10, "a killed container's liveliness token goes at once (no lease to wait)"
+    assert ("agent/3", False) in obs.alive_changes and obs.alive_changes[-1:] != [("agent/3", False)]
+    assert obs.exit_codes["world"] == 0, p.logs()
+    s = p.summary()
+    assert s["complete"] and s["clock"] == "realtime"
+    # While it was dead the world held robot 3 still and its neighbours saw its estimate go stale
+    # (both in the record). How long it was dead depends on how fast docker starts a container,
+    # so the test asks that the silence is there, not how many ticks it lasted.
+    held = s["faults"]["degraded_ticks"]
+    dead_s = obs.rejoined_at_t - obs.killed_at_t
+    assert dead_s > SILENT_HOLD_S, f"robot 3 was silent only {dead_s:.2f} s: too short to test the hold"
+    assert held.get("world_held_at_zero", {}).get("3", 0) > 0, held
+    sc = load(SCENARIO)
+    assert sum(held.get("stale_neighbour", {}).get(str(j), 0) for j in sc.neighbours(3)) > 0, held
+    # ... and once back it flew in formation again (judged before the network fault that follows).
+    with np.load(p.out / "trajectory.npz") as traj:
+        t, err = traj["t"], formation_errors({k: traj[k] for k in ("p", "p0", "offsets")})
+    j, k = (int(np.searchsorted(t, x)) for x in (obs.rejoined_at_t, obs.cut_at_t))
+    print(f"robot 3 formation error {err[j, 2]:.3f} m when it rejoined at t = {t[j]:.2f} s, {err[k, 2]:.3f} m "
+          f"{t[k] - t[j]:.1f} s later (worst robot then {err[k].max():.3f} m: avoidance), "
+          f"{err[-1, 2]:.3f} m at the end")
+    assert err[k, 2] <= 1.0, "closing on its slot before the next fault"
+    assert err[-1, 2] <= 0.5
+    assert s["min_object_distance_m"] >= 1.0
+
+
+@pytest.mark.slow
+def test_docker_network_disconnect_is_seen_as_staleness_and_recovered_from(broken_run):
+    p, obs = broken_run
+    s = p.summary()
+    latency = s["sense_to_command"]
+    print(f"agent 5 off the network {obs.cut_s:.1f} s from t = {obs.cut_at_t:.2f} s: no command of it "
+          f"arrived for {obs.silent_wall_s:.2f} s, the stalest was {obs.stalest_s:.2f} s behind the swarm, "
+          f"fresh again at t = {obs.resumed_at_t:.2f} s; the world's worst sensing-to-command "
+          f"latency {latency['max_ms']:.0f} ms; degraded ticks {s['faults']['degraded_ticks']}")
+    # Seen: nothing of robot 5 crosses the cut. How the world's record shows it varies with where
+    # Zenoh's queues fill, so it is printed, not asserted: the world held its clock for the deaf
+    # robot (silent 3.3 s while 0.7 s of simulation passed), or a command answered its sensing a
+    # cut late (latency 3.3 s), or neither stood out (silent 5.6 s, 3.9 s passed, latency 0.26 s).
+    assert obs.silent_wall_s >= 0.5 * CUT_S, "no command of robot 5 crosses a cut network"
+    # Recovered: never taken for dead (the cut is shorter than the lease), fresh again, the run
+    # completes, and robot 5 ends in formation.
+    assert ("agent/5", False) not in obs.alive_changes, "a cut shorter than the lease is no death"
+    assert obs.resumed_at_t - obs.cut_at_t < CUT_S + 20
+    assert obs.exit_codes["world"] == 0 and s["complete"], p.logs()
+    with np.load(p.out / "trajectory.npz") as traj:
+        err = formation_errors({k: traj[k] for k in ("p", "p0", "offsets")})
+    print(f"robot 5 final formation error {err[-1, 4]:.3f} m (worst robot {err[-1].max():.3f} m)")
+    assert err[-1, 4] <= 0.5
+
+
+@pytest.mark.slow
+def test_docker_network_cut_past_the_lease_the_agent_waits_for_the_world_and_rejoins(project_factory):
+    """Agent 5 off the network until the router has given it up (the Zenoh lease, 10 s), and its
+    own session the world: it must wait for the world (it did not end the run), take it back
+    when the network does, and fly on; the run completes."""
+    p, watcher = flying_realtime_swarm(project_factory, 45.0)
+    try:
+        agent5 = p.container("agent-5")
+        t0 = time.monotonic()
+        _run(["docker", "network", "disconnect", p.network(), agent5], 30, "network disconnect")
+        watcher.wait("agent/5 given up by the router (its lease ran out)", lambda: "agent/5" not in watcher.alive, 60)
+        end = time.monotonic() + 2.0  # the fault goes on a little: agent 5's own lease runs out too
+        while time.monotonic() < end:
+            watcher.bus.poll(0.05)
+        _run(["docker", "network", "connect", p.network(), agent5], 30, "network connect")
+        cut_s = time.monotonic() - t0
+        heard = len(watcher.cmds[5])
+        watcher.wait("agent/5 alive again", lambda: "agent/5" in watcher.alive, 90)
+        watcher.wait("a command from robot 5 after the reconnect", lambda: len(watcher.cmds[5]) > heard, 90)
+        back_at_t = watcher.cmds[5][heard][1]
+    finally:
+        watcher.close()
+    assert p.wait_exit("world", 240) == 0, p.logs()
+    said = [line for line in p.logs().splitlines() if "agent-5" in line and "fxswarm agent 5" in line]
+    print(f"agent 5 off the network {cut_s:.1f} s, flying again at t = {back_at_t:.2f} s; it said: {said}")
+    assert any("lost the world" in line for line in said) and any("the world is back" in line for line in said)
+    s = p.summary()
+    assert s["complete"]
+    with np.load(p.out / "trajectory.npz") as traj:
+        err = formation_errors({k: traj[k] for k in ("p", "p0", "offsets")})
+    print(f"robot 5 final formation error {err[-1, 4]:.3f} m (worst robot {err[-1].max():.3f} m)")
+    # Back in formation: 0.15-0.58 m in 3 runs (real time on a loaded machine; with robot 5
+    # left behind, held still while the leader climbs at 1 m/s, it would be metres off).
+    assert err[-1, 4] <= 1.0

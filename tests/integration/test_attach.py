@@ -1,0 +1,79 @@
+"""``fxswarm attach``: an observer that joins through the router rebuilds the world's own run folder.
+
+Real processes (router, leader, six agents, world; lock-step paper-fast) on this machine, each a
+Zenoh client of the router; the world waits for the observer's liveliness (``--wait-for
+observer/0``), and the observer takes the scenario from the router (``--scenario``), as it does
+from a stack's router on another host.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fxswarm.launch.launcher import free_port
+
+pytestmark = [pytest.mark.zenoh, pytest.mark.timeout(600)]
+
+REPO = Path(__file__).resolve().parents[2]
+SCENARIO = REPO / "configs" / "paper-fast.toml"
+
+
+def fxswarm(*args: str, log: Path) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "fxswarm.cli", *args], stdout=log.open("w"),
+                            stderr=subprocess.STDOUT)
+
+
+@pytest.mark.slow
+def test_attach_writes_the_same_trajectory_and_figures_as_the_world(tmp_path):
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    swarm = f"attach-{uuid.uuid4().hex[:8]}"
+    run = tmp_path / "run"
+    common = ["--mode", "client", "--connect", endpoint, "--no-multicast", "--swarm", swarm,
+              "--clock", "lockstep", "--out", str(run)]
+    procs = [fxswarm("router", "--listen", endpoint, "--swarm", swarm, "--scenario", str(SCENARIO),
+                     log=tmp_path / "router.log")]
+    try:
+        attach = fxswarm("attach", endpoint, "--swarm", swarm, "--out", str(tmp_path / "seen"), "--timeout", "300",
+                         log=tmp_path / "attach.log")
+        procs.append(attach)
+        procs.append(fxswarm("leader", str(SCENARIO), *common, log=tmp_path / "leader.log"))
+        for i in range(1, 7):
+            procs.append(fxswarm("agent", str(SCENARIO), *common, "--id", str(i), log=tmp_path / f"agent{i}.log"))
+        world = fxswarm("world", str(SCENARIO), *common, "--wait-for", "observer/0", "--tick-timeout", "5",
+                        log=tmp_path / "world.log")
+        procs.append(world)
+        assert world.wait(420) == 0, (tmp_path / "world.log").read_text()
+        code = attach.wait(120)
+        said = (tmp_path / "attach.log").read_text()
+        assert code == 0, said
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.terminate()
+        for p in procs:
+            try:
+                p.wait(30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+    print(said.strip().splitlines()[-1])
+    seen, own = tmp_path / "seen", run
+    assert (seen / "scenario.toml").read_text() == SCENARIO.read_text(), "the scenario came from the router"
+    with np.load(own / "trajectory.npz") as a, np.load(seen / "trajectory.npz") as b:
+        assert sorted(a.files) == sorted(b.files)
+        for key in a.files:
+            assert np.array_equal(a[key], b[key]), key
+    mine, theirs = json.loads((seen / "summary.json").read_text()), json.loads((own / "summary.json").read_text())
+    for key in ("ticks", "min_object_distance_m", "min_obstacle_distance_m", "formation_error_final_m",
+                "estimate_error_final_m", "formation_settle_s", "estimate_settle_s", "avoidance_episodes"):
+        assert mine[key] == theirs[key], key
+    assert mine["complete"] and mine["states_missed"] == 0 and mine["restarts"] == {}
+    assert mine["logger"] == {"seen": False, "died": False, "alive_at_end": False}
+    assert (seen / "recording.rrd").stat().st_size > 100_000

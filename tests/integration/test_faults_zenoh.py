@@ -1,0 +1,199 @@
+"""Faults over real processes and real Zenoh: same trajectories as the simulator, crashes, garbage."""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+import tomllib
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+
+from fxswarm.core.messages import (SCHEMA_VERSION, Clock, Command, LeaderState, Message, Sense, WireError,
+                                   WorldState, decode, encode)
+from fxswarm.core.metrics import formation_errors
+from fxswarm.runtime.output import load_trajectory
+from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions, check_sender
+from fxswarm.testing import dump_toml
+from fxswarm.core.scenario import directed_links
+
+from support import CONFIGS, PAPER_FAST
+
+# Every kind of link fault at once, strong enough to act within a short run.
+MIXED_FAULTS = {
+    "seed": 11,
+    "links": [
+        {"link": "agent:*->agent:*", "kinds": ["estimate"], "drop": 0.2, "delay": 0.03, "jitter": 0.02,
+         "duplicate": 0.1, "reorder": 0.1},
+        {"link": "agent:2->agent:3", "burst": {"p_good_bad": 0.05, "p_bad_good": 0.3}},
+        {"link": "leader->agent:1", "drop": 0.3, "delay": 0.01},
+        {"link": "world->agent:5", "kinds": ["sense"], "drop": 0.2},
+        {"link": "agent:6->world", "kinds": ["command"], "drop": 0.1},
+    ],
+    "partitions": [{"start": 0.6, "end": 0.9, "isolate": [3]}],
+    "leader_outages": [{"start": 1.0, "end": 1.2}],
+}
+
+
+def scenario_file(folder: Path, duration: float, faults: dict) -> Path:
+    data = tomllib.loads(PAPER_FAST.read_text())
+    data["scenario"]["duration"] = duration
+    data["faults"] = faults
+    path = folder / f"faulty-{os.getpid()}.toml"
+    path.write_text(dump_toml(data))
+    return path
+
+
+@pytest.mark.zenoh
+def test_lockstep_processes_with_faults_match_the_simulator_bit_for_bit(launch_swarm, tmp_path):
+    config = scenario_file(tmp_path, 1.5, MIXED_FAULTS)
+    swarm = launch_swarm(config)
+    summary = swarm.wait_done(timeout=180)
+    expected_summary = swarm.assert_matches_sim()
+    assert summary["complete"] and summary["missed_ticks"] == 0
+    # Each receiver counted its own inbound links; together they are the simulator's counts.
+    assert summary["faults"]["links"] == expected_summary["faults"]["links"]
+    links = summary["faults"]["links"]
+    assert links["agent:2->agent:3/estimate"]["dropped"] > 0
+    assert links["agent:1->agent:2/estimate"]["delayed"] > 0
+    assert links["agent:1->agent:2/estimate"]["duplicated"] > 0
+    assert links["world->agent:5/sense"]["dropped"] > 0
+    assert summary["faults"]["degraded_ticks"] == expected_summary["faults"]["degraded_ticks"]
+
+
+@pytest.mark.zenoh
+def test_agent_2_killed_at_10_s_and_restarted_at_12_s_rejoins_and_converges(launch_swarm):
+    """Real processes: the launcher SIGKILLs agent 2 at 10 s and starts a fresh one at 12 s."""
+    config = CONFIGS / "faults-crash.toml"
+    swarm = launch_swarm(config)
+    summary = swarm.wait_done(timeout=300)
+    assert summary["complete"] and summary["ticks"] == swarm.scenario.ticks
+    assert not swarm.deaths  # the planned kill is not an unplanned death; nothing else died
+    err = formation_errors(load_trajectory(swarm.out))
+    tol = swarm.scenario.settle_tolerance
+    assert err[-1, 1] < tol, "robot 2 is not back in formation by the end"
+    crash = summary["faults"]["recoveries"][0]
+    assert crash["event"] == "kill agent:2" and crash["recovery_s"] is not None
+    assert [e["action"] for e in summary["faults"]["process_events"]] == ["kill", "restart"]
+    degraded = summary["faults"]["degraded_ticks"]
+    assert degraded["world_held_at_zero"]["2"] > 0  # the world stopped the silent robot
+    assert degraded["stale_neighbour"]["1"] > 0 and degraded["stale_neighbour"]["3"] > 0
+
+
+# --- garbage on every key --------------------------------------------------------------------
+
+
+def rejected(topic: str, payload: bytes) -> bool:
+    """Whether a receiver drops ``payload`` on ``topic`` (the wire's own checks)."""
+    try:
+        check_sender(topic, decode(payload))
+    except WireError:
+        return True
+    return False
+
+
+def garbage_for(topic: str, sample: Message, rng: np.random.Generator) -> list[bytes]:
+    """Malformed payloads for ``topic``, from a valid ``sample``: random bytes, wrong msgpack
+    types, wrong shapes, NaN/inf, huge numbers, unknown schema versions, a stranger's id."""
+    out = [bytes(rng.integers(0, 256, size=int(n), dtype=np.uint8)) for n in (0, 1, 7, 64, 300)]
+    out += [msgpack.packb(x) for x in ([1, 2, 3], "hello", None, 3.5, {"schema": "x"}, 12)]
+    base = msgpack.unpackb(encode(sample))
+    out.append(encode(sample)[:-3])  # truncated
+    bad_values = ["str", None, [1.0, 2.0], [[1.0]], [math.nan, 0.0, 0.0], [math.inf, 0.0, 0.0],
+                  [1e300, 0.0, 0.0], -1, 2**60, True, {"a": 1}]
+    for key in base:
+        for value in bad_values:
+            out.append(msgpack.packb({**base, key: value}))
+        without = dict(base)
+        del without[key]
+        out.append(msgpack.packb(without))
+    out += [msgpack.packb({**base, "schema": v}) for v in (0, SCHEMA_VERSION - 1, SCHEMA_VERSION + 1, 999, "1")]
+    if "link_age" in base:  # one link too many on one side
+        out.append(msgpack.packb({**base, "link_age": base["link_age"] + [0]}))
+    if "robot" in base:
+        out.append(msgpack.packb({**base, "robot": 99, "sender": 99}))  # a stranger's robot id
+    if "sender" in base:
+        out.append(msgpack.packb({**base, "role": "agent", "sender": 99}))
+    return [p for p in out if rejected(topic, p)]
+
+
+def samples(sc) -> dict[str, Message]:
+    v = np.zeros(3)
+    out: dict[str, Message] = {
+        "leader/state": LeaderState("leader", 0, 1, 1, 0.01, v),
+        "world/state": WorldState("world", 0, 1, 1, 0.01, np.zeros((sc.n, 3)), np.zeros((sc.n, 3)),
+                                  np.zeros((sc.n, 3)), np.zeros(sc.n), np.zeros(sc.n, dtype=bool), np.zeros((4, 3)),
+                                  np.zeros(len(directed_links(sc)), dtype=np.int64),
+                                  np.zeros(len(directed_links(sc)), dtype=np.int64)),
+        "alive/agent/1": Clock("world", 0, 1, 1, 0.01),
+    }
+    for r in sc.robots:
+        out[f"world/sense/{r.id}"] = Sense("world", 0, 1, 1, 0.01, r.id, v, v, v)
+        m = len(sc.neighbours(r.id)) + sc.is_pinned(r.id)
+        # With the estimate it carries for the neighbours: garbage in those fields too.
+        out[f"agent/{r.id}/cmd"] = Command("agent", r.id, 1, 1, 0.01, r.id, v, v, False, 0, (0,) * m, (0,) * m,
+                                           None, 2, 0.02, v, None)
+    return out
+
+
+@pytest.mark.zenoh
+def test_garbage_on_every_key_kills_nothing_is_counted_and_leaves_the_lockstep_run_unchanged(launch_swarm):
+    # A long tick timeout: a flooded process may be slow, but lock-step must wait for it, not skip.
+    # 5 s (500 ticks): long enough that the run is still going when the attack starts.
+    swarm = launch_swarm(PAPER_FAST, duration=5.0, tick_timeout=20.0)
+    sc = swarm.scenario
+    rng = np.random.default_rng(4)
+    blasts = {topic: garbage_for(topic, msg, rng) for topic, msg in samples(sc).items()}
+    assert all(len(b) > 40 for t, b in blasts.items() if not t.startswith("alive")), \
+        {t: len(b) for t, b in blasts.items()}
+    attacker = ZenohBus(swarm.swarm.swarm, ZenohOptions("client", (swarm.swarm.endpoint,), (), False))
+    rounds = 0
+    heard: list[float] = []  # the harness's simulation time after each round
+    try:
+        # A put is sent only to subscribers the session knows of: wait until each key has one, so no
+        # early garbage is lost to discovery (nobody subscribes to puts on a liveliness key).
+        waiting = {t for t in blasts if not t.startswith("alive")}
+        matched = threading.Event()
+        lock = threading.Lock()
+
+        def on_match(topic: str, status) -> None:
+            with lock:
+                if status.matching:
+                    waiting.discard(topic)
+                if not waiting:
+                    matched.set()
+
+        publishers, listeners = {}, []  # listeners kept: an undeclared one stops listening
+        for topic in blasts:
+            pub = publishers[topic] = attacker.session.declare_publisher(f"{attacker.root}/{topic}")
+            if topic in waiting:
+                listeners.append(pub.declare_matching_listener(lambda st, topic=topic: on_match(topic, st)))
+                on_match(topic, pub.matching_status)
+        assert matched.wait(30), f"no subscriber on {sorted(waiting)}"
+        world = swarm.swarm.children["world"]
+        # One payload per key in turn, so every process is hit within the first pass over the keys,
+        # however soon the run ends.
+        order = [(t, p) for i in range(max(map(len, blasts.values())))
+                 for t, ps in blasts.items() if i < len(ps) for p in (ps[i],)]
+        while world.running() and rounds < 30:
+            for topic, payload in order:
+                publishers[topic].put(payload)
+            rounds += 1
+            swarm.pump(0.05)
+            heard.append(swarm.sim_time())
+        summary = swarm.wait_done(timeout=180)
+    finally:
+        attacker.close()
+    assert rounds >= 1
+    # Garbage on world/state neither moves nor erases the harness's view of the run.
+    assert heard == sorted(heard), heard
+    assert not swarm.deaths and summary["complete"] and summary["missed_ticks"] == 0
+    procs = summary["processes"]
+    assert set(procs) == {"world-0", "leader-0"} | {f"agent-{r.id}" for r in sc.robots}
+    for name, c in procs.items():
+        assert c["invalid"] > 0, (name, c)  # every process was hit and counted it
+        assert c["stop_reason"] in ("done", "run over"), (name, c)
+    swarm.assert_matches_sim()

@@ -1,0 +1,58 @@
+"""Two swarms on one router never cross-talk (real processes, real sessions)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fxswarm.core.messages import Clock, Command, Estimate, LeaderState, Sense
+from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions, wait_until
+
+from support import PAPER_FAST
+
+
+V = np.array([50.0, -50.0, 50.0])  # would wreck the formation if it ever got in
+
+
+def shouts(k: int) -> list:
+    """A message on every key the real swarm uses, as another swarm would send them."""
+    out = [("clock", Clock("world", 0, k, k, 0.0)), ("leader/state", LeaderState("leader", 0, k, k, 0.0, V))]
+    for i in range(1, 7):
+        out += [(f"world/sense/{i}", Sense("world", 0, k, k, 0.0, i, V, V, V)),
+                (f"agent/{i}/estimate", Estimate("agent", i, k, k, 0.0, i, V)),
+                (f"agent/{i}/cmd", Command("agent", i, k, k, 0.0, i, V, V, False))]
+    return out
+
+
+@pytest.mark.zenoh
+def test_a_second_swarm_on_the_same_router_never_reaches_the_first(launch_swarm):
+    swarm = launch_swarm(PAPER_FAST, duration=1.0)
+    options = ZenohOptions("client", (swarm.swarm.endpoint,), (), False)
+    shouter, listener = ZenohBus("intruders", options), ZenohBus("intruders", options)
+    try:
+        heard: list[str] = []
+        listener.subscribe("**", lambda topic, payload: heard.append(topic), raw=True)
+        alive: list[str] = []
+        listener.watch_alive("**", lambda name, up: alive.append(name))
+        listener.declare_alive("test", 1)  # after its subscription: once seen, the router routes to it
+        ready: list[str] = []
+        shouter.watch_alive("test/1", lambda name, up: ready.append(name))
+        assert wait_until(shouter, lambda: ready, 10)
+        sent = 0
+        k = 0
+        while swarm.swarm.children["world"].running():
+            k += 1
+            for topic, msg in shouts(k):
+                shouter.publish(topic, msg)
+                sent += 1
+            swarm.pump(0.01)
+        summary = swarm.wait_done()
+        assert wait_until(listener, lambda: len(heard) >= sent, 10)
+        assert len(heard) == sent  # the intruders' own traffic, and nothing of the swarm's
+        assert wait_until(listener, lambda: alive, 5) and set(alive) == {"test/1"}  # no token of the swarm's
+    finally:
+        shouter.close()
+        listener.close()
+    assert k > 5, "the intruders had no time to shout"
+    swarm.assert_matches_sim()
+    assert all(c["invalid"] == 0 for c in summary["processes"].values())

@@ -1,0 +1,68 @@
+"""Real time over real processes: each process on its own beat, on the latest data."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from fxswarm.runtime.output import load_trajectory
+from fxswarm.core.metrics import formation_errors
+
+from support import PAPER_FAST
+
+SPEED_ALWAYS = 1.0  # real time at 100 ticks/s: holds with one swarm on the machine (not two at once)
+
+
+@pytest.mark.zenoh
+def test_realtime_swarm_flies_toward_formation_and_measures_its_latency(launch_swarm):
+    swarm = launch_swarm(PAPER_FAST, duration=3.0, clock="realtime", speed=1.0)
+    summary = swarm.wait_done(timeout=120)
+    assert summary["complete"] and summary["clock"] == "realtime" and summary["ticks"] == 300
+    err = formation_errors(load_trajectory(swarm.out)).max(axis=1)
+    assert err[-1] < 0.6 * err[0], (err[0], err[-1])  # converging (6.4 m -> about 1 m in the sim)
+    lat = summary["sense_to_command"]
+    assert lat["n"] > 0 and 0 < lat["p50_ms"] <= lat["p99_ms"] <= lat["max_ms"]
+    procs = summary["processes"]
+    for name, c in procs.items():
+        assert c["invalid"] == 0, name
+        if name.startswith("agent"):
+            assert c["sent"] > 100 and c["received"] > 100, (name, c)
+    assert procs["leader-0"]["sent"] > 100  # on its own beat: no answer to a clock needed
+
+
+@pytest.mark.zenoh
+@pytest.mark.slow
+def test_paper_fast_in_real_time_at_speed_4_meets_the_paper_outcome(launch_swarm):
+    """The issue's must-show, asserted on every machine.
+
+    The machine need not keep up with 400 ticks/s: the world slows its clock rather than
+    integrate on stale commands (``achieved_speed``), and each robot carries its neighbours'
+    late estimates forward to its own time (docs/design.md "Delay compensation"), so latency
+    counted in ticks no longer turns into lag behind the climbing leader. Without the
+    compensation the final formation error met 0.25 m in 1 run of 9 (0.43-0.62 m in the others).
+    """
+    swarm = launch_swarm(PAPER_FAST, clock="realtime", speed=4.0)
+    summary = swarm.wait_done(timeout=300)
+    detail = {k: summary.get(k) for k in ("late_ticks", "held_ticks", "achieved_speed", "sense_to_command",
+                                         "formation_error_final_m", "estimate_error_final_m",
+                                         "min_object_distance_m")}
+    print(f"speed 4 at load average {os.getloadavg()[0]:.1f}: {detail}")
+    assert summary["min_object_distance_m"] >= 1.8, detail
+    assert summary["formation_error_final_m"] <= 0.25, detail
+    assert summary["estimate_error_final_m"] <= 0.25, detail
+
+
+@pytest.mark.zenoh
+@pytest.mark.slow
+def test_paper_fast_in_real_time_meets_the_real_time_outcome_on_a_loaded_machine(launch_swarm):
+    """Asserted on every machine: at 100 ticks/s (wall time) this 2-core machine keeps up even when loaded,
+    where at speed 4 it slows the world's clock."""
+    swarm = launch_swarm(PAPER_FAST, clock="realtime", speed=SPEED_ALWAYS)
+    summary = swarm.wait_done(timeout=300)
+    detail = {k: summary.get(k) for k in ("late_ticks", "held_ticks", "achieved_speed", "sense_to_command",
+                                         "formation_error_final_m", "estimate_error_final_m",
+                                         "min_object_distance_m")}
+    assert summary["min_object_distance_m"] >= 1.8, detail
+    assert summary["formation_error_final_m"] <= 0.25, detail
+    assert summary["estimate_error_final_m"] <= 0.25, detail

@@ -1,0 +1,161 @@
+"""Helpers the test layers share (fixtures are in ``conftest.py``; the swarm harness is
+``fxswarm.testing``). On ``sys.path`` through ``pythonpath`` in pyproject.toml."""
+
+from __future__ import annotations
+
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+CONFIGS = REPO / "configs"
+PAPER_FAST = CONFIGS / "paper-fast.toml"
+PAPER = CONFIGS / "paper.toml"
+#: Every scenario the project ships, by stem (``paper-fast``, ``faults-crash``, ...).
+SHIPPED_CONFIGS = sorted(CONFIGS.glob("*.toml"))
+#: Length of the recorded runs (conftest's ``scenario``), s: formation motion, no avoidance yet.
+RECORDED_S = 3.0
+
+
+def copy_source(dest: Path) -> Path:
+    """Copy the project's source tree (no venv, caches, runs or builds) to ``dest``; return it.
+    A build writes build/ and *.egg-info beside the sources: done on a copy, it leaves the
+    working tree (and a concurrent `make lint`, which builds there) alone."""
+    import shutil
+
+    shutil.copytree(REPO, dest, ignore=shutil.ignore_patterns(
+        ".git", ".venv", "runs", "build", "dist", "*.egg-info", "__pycache__", ".pytest_cache", ".hypothesis",
+        ".import_linter_cache", "results"))
+    return dest
+
+
+def fxswarm_command(*args: str) -> list[str]:
+    """The command line of ``fxswarm ARGS...`` with this interpreter (the source tree's fxswarm)."""
+    return [sys.executable, "-m", "fxswarm.cli", *map(str, args)]
+
+
+#: A vector any message may carry (m or m/s).
+V = np.array([1.0, 2.0, 3.0])
+
+
+def estimate(robot: int, sender: int | None = None, tick: int = 0):
+    """An ``Estimate`` on robot ``robot``'s key, signed by ``sender`` (default: itself), ph = :data:`V`."""
+    from fxswarm.core.messages import Estimate
+
+    return Estimate("agent", robot if sender is None else sender, 1, tick, 0.0, robot, V)
+
+
+def with_faults(faults: dict, **scenario):
+    """paper-fast with ``[faults]`` = ``faults`` and ``[scenario]`` keys overridden, parsed."""
+    from fxswarm.core.scenario import parse
+
+    data = tomllib.loads(PAPER_FAST.read_text())
+    data["scenario"].update(scenario)
+    data["faults"] = faults
+    return parse(data, "paper-fast.toml+faults")
+
+
+def ring_scenario(folder: Path, robots: int) -> Path:
+    """A copy of paper-fast with ``robots`` robots on a ring (offsets spread on a circle)."""
+    import math
+
+    text = PAPER_FAST.read_text()
+    head = text[: text.index("[[robots]]")]
+    tail = text[text.index("[[obstacles]]"):]
+    rows = []
+    for k in range(robots):
+        a = 2 * math.pi * k / robots
+        rows.append(f"[[robots]]\nposition = [{8 * math.cos(a):.3f}, {8 * math.sin(a):.3f}, 0.0]\n"
+                    f"offset = [{3 * math.cos(a):.3f}, {3 * math.sin(a):.3f}, 0.0]\n")
+    path = Path(folder) / f"ring{robots}.toml"
+    head = head.replace('name = "paper-fast"', f'name = "ring{robots}"')
+    head = head.replace("pinned = [1, 4]", "pinned = [1]")
+    path.write_text(head + "".join(rows) + "\n" + tail)
+    return path
+
+
+# --- Rerun recordings, read back with Rerun's own reader -----------------------------------------
+
+
+def read_series(path: Path) -> dict[str, dict[str, np.ndarray]]:
+    """Per entity: ``t`` (s) and each component's values (rows stacked), temporal rows only."""
+    from rerun.chunk import RrdReader
+
+    out: dict[str, dict[str, list]] = {}
+    for chunk in RrdReader(path).stream():
+        batch = chunk.to_record_batch()
+        if "sim_time" not in batch.schema.names:
+            continue
+        entity = out.setdefault(chunk.entity_path.lstrip("/"), {})
+        times = batch.column("sim_time").cast("int64").to_numpy() / 1e9
+        entity.setdefault("t", []).extend(times)
+        for name in batch.schema.names:
+            if ":" in name:
+                entity.setdefault(name, []).extend(batch.column(name).to_pylist())
+    result = {}
+    for entity, cols in out.items():
+        order = np.argsort(cols["t"], kind="stable")
+        result[entity] = {k: [v[i] for i in order] if k != "t" else np.asarray(v)[order] for k, v in cols.items()}
+    return result
+
+
+def entities(path: Path) -> set[str]:
+    """Every entity path in the recording at ``path``."""
+    from rerun.chunk import RrdReader
+
+    return {chunk.entity_path.lstrip("/") for chunk in RrdReader(path).stream()}
+
+
+def expected_entities() -> set[str]:
+    """What the logger draws for a run (velocities only when asked for)."""
+    from fxswarm.logger import style
+
+    return {style.ROBOTS, style.TRAILS, style.LEADER, style.ESTIMATES, style.SLOTS, style.OBSTACLES, style.EDGES,
+            style.VELOCITIES, style.FORMATION_ERROR, style.NEAREST_DISTANCE, style.ESTIMATE_ERROR,
+            style.AVOID_ACTIVE, style.LINK_DROPS, style.LINK_STALE, style.REAL_TIME_FACTOR, style.TICK_RATE}
+
+
+def record_in_process(sc, rrd: Path, recording_id: str, options):
+    """Run ``sc`` in the in-process simulator with a recorder on its bus writing ``rrd``;
+    return (simulation, summary, recorder). ``options``: a ``RecorderOptions``."""
+    from fxswarm.launch.sim import Simulation
+    from fxswarm.logger.recorder import SwarmRecorder, attach
+    from fxswarm.logger.sinks import Outputs, open_recording
+
+    sim = Simulation(sc)
+    rec, _ = open_recording(Outputs(file=rrd), recording_id=recording_id)
+    recorder = SwarmRecorder(sc, rec, options)
+    recorder.start()
+    attach(sim.bus, recorder)
+    summary = sim.run()
+    recorder.close()
+    return sim, summary, recorder
+
+
+# --- figures -----------------------------------------------------------------------------------
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def image_stats(path: Path) -> tuple[tuple[int, int], float, int]:
+    """(size (h, w), fraction of non-background pixels, number of distinct colours)."""
+    import matplotlib.image as mpimg
+
+    assert path.read_bytes()[:8] == PNG_MAGIC, f"{path} is not a PNG"
+    img = mpimg.imread(path)[..., :3]
+    background = np.median(img.reshape(-1, 3), axis=0)
+    ink = np.any(np.abs(img - background) > 0.1, axis=2).mean()
+    rgb = (img * 255).astype(np.uint32)
+    colours = len(np.unique((rgb[..., 0] << 16) | (rgb[..., 1] << 8) | rgb[..., 2]))
+    return img.shape[:2], float(ink), colours
+
+
+def has_colour(path: Path, rgb: int, tol: int = 25, min_pixels: int = 30) -> bool:
+    """Whether at least ``min_pixels`` pixels of the PNG at ``path`` are within ``tol`` of ``rgb``."""
+    import matplotlib.image as mpimg
+
+    img = (mpimg.imread(path)[..., :3] * 255).astype(int)
+    target = np.array([(rgb >> 16) & 255, (rgb >> 8) & 255, rgb & 255])
+    return int((np.abs(img - target).max(axis=2) <= tol).sum()) >= min_pixels

@@ -1,0 +1,39 @@
+"""Who died during a run, as ``fxswarm attach`` tells it from liveliness and the world's ticks."""
+
+from __future__ import annotations
+
+from fxswarm.core.scenario import load
+from fxswarm.launch.attach import Observer
+from support import PAPER_FAST
+
+
+def observer_at(tick: int) -> Observer:
+    obs = Observer(load(PAPER_FAST))
+    obs.last_tick = tick
+    return obs
+
+
+def test_leaving_at_the_end_is_not_a_death_even_before_the_last_states_arrive():
+    obs = observer_at(100)
+    for i in (1, 2):
+        obs.on_alive(f"agent/{i}", True)
+    obs.last_tick = obs.sc.ticks - 3  # the world's last states are still on their way
+    obs.on_alive("agent/1", False)
+    obs.on_alive("agent/2", False)
+    obs.last_tick = obs.sc.ticks - 1
+    assert obs.deaths() == {}
+
+
+def test_a_killed_process_counts_whether_or_not_it_comes_back():
+    obs = observer_at(10)
+    for i in (3, 4):
+        obs.on_alive(f"agent/{i}", True)
+    obs.on_alive("agent/3", False)  # killed at tick 10, replaced
+    obs.on_alive("agent/4", False)  # killed at tick 10, never back
+    obs.last_tick = 300
+    obs.on_alive("agent/3", True)
+    obs.last_tick = obs.sc.ticks - 2
+    obs.on_alive("agent/3", False)  # the replacement leaves at the end: not a second death
+    obs.last_tick = obs.sc.ticks - 1
+    assert obs.deaths() == {"agent/3": 1, "agent/4": 1}
+    assert obs.summary(1.0)["restarts"] == {"agent/3": [1, 1], "agent/4": [1, 0]}

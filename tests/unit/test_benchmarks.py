@@ -1,0 +1,45 @@
+"""The benchmark's reporting: a median of runs, never the best one, and the targets it meets."""
+
+import sys
+
+from support import REPO
+
+
+sys.path.insert(0, str(REPO / "benchmarks"))
+
+import bench_runtime as b  # noqa: E402  (a script's module, imported from its folder)
+
+TARGETS = {"lockstep_ticks_per_s_6": 500, "realtime_p99_ms_6": 5.0, "rss_mb_per_agent": 80}
+
+
+def lockstep_run(rate: float, agents: int = 6) -> dict:
+    return {"agents": agents, "ticks_per_s": rate, "cpu_ms_per_tick": {"total": 1e3 / rate}, "load_avg": 1.0}
+
+
+def realtime_run(p99: float, rss: float = 50.0) -> dict:
+    return {"agents": 6, "sense_to_command": {"p50_ms": 1.0, "p99_ms": p99, "max_ms": 2 * p99},
+            "rss_mb_per_agent": {"max": rss, "mean": rss}, "load_avg": 1.0}
+
+
+def test_the_median_run_is_reported_with_every_run():
+    runs = [lockstep_run(r) for r in (610.0, 480.0, 530.0)]
+    row = b.median_run(runs, key=lambda r: r["ticks_per_s"])
+    assert row["ticks_per_s"] == 530.0 and row["repeats"] == 3
+    assert [r["ticks_per_s"] for r in row["runs"]] == [610.0, 480.0, 530.0]  # in the order they ran
+
+
+def test_of_two_middle_runs_the_worse_is_reported():
+    rates = b.median_run([lockstep_run(r) for r in (520.0, 490.0)], key=lambda r: r["ticks_per_s"])
+    assert rates["ticks_per_s"] == 490.0
+    lat = b.median_run([realtime_run(p) for p in (4.0, 6.0)], key=lambda r: -r["sense_to_command"]["p99_ms"])
+    assert lat["sense_to_command"]["p99_ms"] == 6.0
+
+
+def test_targets_are_judged_on_medians_and_on_the_largest_agent_of_any_run():
+    lock = b.median_run([lockstep_run(r) for r in (510.0, 470.0, 520.0)], key=lambda r: r["ticks_per_s"])
+    real = b.median_run([realtime_run(4.0, rss=50.0), realtime_run(4.5, rss=85.0), realtime_run(3.0)],
+                        key=lambda r: -r["sense_to_command"]["p99_ms"])
+    met = b.targets_met({"lockstep": [lock, lockstep_run(90.0, agents=24)], "realtime": [real]}, TARGETS)
+    assert met["lockstep_ticks_per_s_6"] == {"median": 510.0, "met": True}
+    assert met["realtime_p99_ms_6"] == {"median": 4.0, "met": True}
+    assert met["rss_mb_per_agent"] == {"max": 85.0, "met": False}

@@ -1,0 +1,247 @@
+"""The fault plan: parsing with named errors, pure seeded fates, burst statistics, the inbox filter."""
+
+from __future__ import annotations
+
+import tomllib
+
+import numpy as np
+import pytest
+
+from fxswarm.agents.node import AgentNode
+from fxswarm.core.messages import Clock, Command, Estimate, LeaderState, Sense
+from fxswarm.core.scenario import ScenarioError, load, parse
+from fxswarm.faults.inbox import FaultyInbox, ReplayedSense
+from fxswarm.faults.plan import Cut, FaultPlan, LinkRule, ProcessFault, parse_faults, plan_of, resolve
+from fxswarm.faults.process import Mortal, ProcessSchedule
+
+from support import PAPER_FAST
+
+
+def plan(table: dict, n: int = 6) -> FaultPlan:
+    return parse_faults(table, 1, n, "x.toml")
+
+
+@pytest.mark.parametrize("table, message", [
+    ({"links": [{"link": "agent:1-agent:2", "drop": 0.1}]}, "x.toml: faults.links[0].link: expected a link 'SRC->DST'"),
+    ({"links": [{"link": "agent:x->*"}]}, "faults.links[0].link: expected endpoints"),
+    ({"links": [{"link": "agent:9->world", "drop": 0.1}]},
+     "faults.links[0].link: expected endpoints 'agent:<id>' with id in 1..6 (the scenario's robots), got 'agent:9->world'"),
+    ({"partitions": [{"start": 1, "end": 2, "isolate": [1], "links": ["world->agent:0"]}]},
+     "faults.partitions[0].links[0]: expected endpoints 'agent:<id>' with id in 1..6"),
+    ({"links": [{"link": "*->*", "drop": 1.5}]}, "faults.links[0].drop: expected a probability in [0, 1], got 1.5"),
+    ({"links": [{"link": "*->*", "delay": -1}]}, "faults.links[0].delay: expected a number >= 0"),
+    ({"links": [{"link": "*->*", "kinds": ["clock"]}]}, "faults.links[0].kinds: expected a list of message kinds"),
+    ({"links": [{"link": "*->*", "burst": {"p_good_bad": 0.1}}]}, "faults.links[0].burst.p_bad_good: expected a number"),
+    ({"links": [{"link": "*->*", "loss": 0.1}]}, "faults.links[0].loss: expected no such field here"),
+    ({"partitions": [{"start": 1, "end": 2}]}, "faults.partitions[0].isolate: expected robots to isolate"),
+    ({"partitions": [{"start": 3, "end": 2, "isolate": [1]}]}, "faults.partitions[0].end: expected an end after"),
+    ({"partitions": [{"start": 1, "end": 2, "isolate": [9]}]}, "faults.partitions[0].isolate: expected a list of robot ids in 1..6"),
+    ({"processes": [{"target": "agent:2", "kill": 1, "freeze": 2}]}, "faults.processes[0].kill: expected exactly one"),
+    ({"processes": [{"target": "agent:7", "kill": 1}]}, "faults.processes[0].target: expected 'leader' or 'agent:<id>'"),
+    ({"processes": [{"target": "agent:2", "kill": 3, "restart": 2}]}, "faults.processes[0].restart: expected a time after"),
+    ({"processes": [{"target": "agent:2", "kill": 3, "thaw": 4}]}, "faults.processes[0].thaw: expected 'restart' with 'kill'"),
+    ({"staleness": 0}, "faults.staleness: expected a number > 0"),
+    ({"lossy": True}, "faults.lossy: expected no such field here"),
+])
+def test_every_bad_faults_table_is_refused_naming_file_field_and_expected_form(table, message):
+    with pytest.raises(ScenarioError) as exc:
+        plan(table)
+    assert message in str(exc.value)
+
+
+def test_scenario_file_faults_are_checked_through_the_scenario_and_cli_specs_equal_the_toml_form():
+    data = tomllib.loads(PAPER_FAST.read_text())
+    sc = parse(data, "paper-fast.toml")
+    specs = ["agent:*->agent:4 drop=0.2 delay=0.05 kinds=estimate", "leader->* burst=0.1,0.3",
+             "partition 10-15 isolate=3", "leader-outage 5-8", "kill agent:2 at=10 restart=12", "seed=5",
+             "staleness=0.3"]
+    from_cli = resolve(sc, specs)
+    data["faults"] = {
+        "seed": 5, "staleness": 0.3,
+        "links": [{"link": "agent:*->agent:4", "drop": 0.2, "delay": 0.05, "kinds": ["estimate"]},
+                  {"link": "leader->*", "burst": {"p_good_bad": 0.1, "p_bad_good": 0.3}}],
+        "partitions": [{"start": 10, "end": 15, "isolate": [3]}],
+        "leader_outages": [{"start": 5, "end": 8}],
+        "processes": [{"target": "agent:2", "kill": 10.0, "restart": 12}],
+    }
+    from_toml = plan_of(parse(data, "paper-fast.toml"))
+    assert from_cli == from_toml
+    clean = load(PAPER_FAST)
+    with pytest.raises(ScenarioError, match=r"--fault 'partition 10': expected 'partition START-END"):
+        resolve(clean, ["partition 10"])
+    with pytest.raises(ScenarioError, match=r"--fault '\*->\* drop=3': faults.links\[0\].drop: expected a probability"):
+        resolve(clean, ["*->* drop=3"])
+
+
+def test_fates_are_pure_functions_of_seed_link_kind_and_tick():
+    a = plan({"seed": 3, "links": [{"link": "agent:*->agent:*", "drop": 0.3, "delay": 0.02, "jitter": 0.05,
+                                    "duplicate": 0.1}]})
+    b = plan({"seed": 3, "links": [{"link": "agent:*->agent:*", "drop": 0.3, "delay": 0.02, "jitter": 0.05,
+                                    "duplicate": 0.1}]})
+    other = plan({"seed": 4, "links": [{"link": "agent:*->agent:*", "drop": 0.3}]})
+    ticks = range(4000)
+    fa = [a.fate("agent:1", "agent:2", "estimate", k, k * 0.01) for k in ticks]
+    assert fa == [b.fate("agent:1", "agent:2", "estimate", k, k * 0.01) for k in reversed(ticks)][::-1]
+    lost = np.array([f.lost for f in fa])
+    assert 0.26 < lost.mean() < 0.34  # iid loss at 0.3 (4000 draws: +-4 sigma)
+    lost_other = np.array([other.fate("agent:1", "agent:2", "estimate", k, 0.0).lost for k in ticks])
+    assert (lost != lost_other).mean() > 0.3  # another seed, another pattern
+    lost_reverse = np.array([a.fate("agent:2", "agent:1", "estimate", k, 0.0).lost for k in ticks])
+    assert (lost != lost_reverse).mean() > 0.3  # each direction of a link has its own fate
+    delays = np.array([f.delay for f in fa if not f.lost])
+    assert delays.min() >= 0.02 and delays.max() < 0.07 and delays.std() > 0.01
+    assert 0.07 < np.mean([f.copies == 2 for f in fa if not f.lost]) < 0.13
+    assert not a.fate("agent:1", "agent:2", "sense", 5, 0.05).lost or True  # kinds default: all
+    assert a.fate("leader", "agent:1", "leader", 5, 0.05).lost is False  # no rule for the leader
+
+
+def test_gilbert_elliott_loss_has_its_stationary_rate_and_burst_length():
+    p_gb, p_bg, loss_bad = 0.05, 0.25, 0.9
+    p = plan({"links": [{"link": "*->*", "burst": {"p_good_bad": p_gb, "p_bad_good": p_bg, "loss_bad": loss_bad}}]})
+    lost = np.array([p.fate("agent:1", "agent:2", "estimate", k, 0.0).lost for k in range(40_000)])
+    bad_share = p_gb / (p_gb + p_bg)
+    assert abs(lost.mean() - bad_share * loss_bad) < 0.02
+    runs = np.diff(np.flatnonzero(np.diff(np.concatenate([[0], lost.astype(int), [0]]))))[::2]
+    assert runs.mean() > 2.5  # bursty: iid loss at the same rate would give runs of ~1.2
+    # Asked out of order (as another process might), the chain gives the same answer.
+    q = plan({"links": [{"link": "*->*", "burst": {"p_good_bad": p_gb, "p_bad_good": p_bg, "loss_bad": loss_bad}}]})
+    assert [q.fate("agent:1", "agent:2", "estimate", k, 0.0).lost for k in (9000, 5, 300)] == \
+        [bool(lost[9000]), bool(lost[5]), bool(lost[300])]
+
+
+def test_partitions_and_outages_cut_radio_links_only_inside_their_window():
+    cut = Cut(1.0, 2.0, isolate=(3,))
+    assert cut.cuts("agent:2", "agent:3", "estimate", 1.5) and cut.cuts("agent:3", "agent:4", "estimate", 1.0)
+    assert cut.cuts("leader", "agent:3", "leader", 1.5)
+    assert not cut.cuts("agent:2", "agent:3", "estimate", 2.0) and not cut.cuts("agent:2", "agent:3", "estimate", 0.9)
+    assert not cut.cuts("world", "agent:3", "sense", 1.5)  # sensing is physics, not radio
+    assert not cut.cuts("agent:3", "world", "command", 1.5)
+    assert not cut.cuts("agent:1", "agent:2", "estimate", 1.5)
+    outage = plan({"leader_outages": [{"start": 5, "end": 6}]})
+    assert outage.fate("leader", "agent:1", "leader", 550, 5.5).cause == "cut"
+    assert not outage.fate("leader", "agent:1", "leader", 650, 6.5).lost
+
+
+def _estimate(j: int, k: int, ph=(0.0, 0.0, 0.0)) -> Estimate:
+    return Estimate("agent", j, k + 1, k, k * 0.01, j, np.array(ph, dtype=float))
+
+
+def test_the_agent_does_not_wait_for_what_its_filter_declared_lost_or_delayed():
+    sc = load(PAPER_FAST)  # robot 3: neighbours 2 and 4, not pinned
+    p = FaultPlan(seed=1, rules=(LinkRule("agent:2", "agent:3", ("estimate",), drop=0.5),
+                                 LinkRule("agent:4", "agent:3", ("estimate",), delay=0.02)))
+    inbox = FaultyInbox(AgentNode(sc, 3), "agent:3", p, sc.dt)
+    agent = inbox.node
+    commands = 0
+    for k in range(50):
+        sense = Sense("world", 0, k + 1, k, k * 0.01, 3, np.zeros(3), None, None)
+        out = inbox.handle("world/sense/3", sense)
+        out += inbox.handle("agent/2/estimate", _estimate(2, k))
+        out += inbox.handle("agent/4/estimate", _estimate(4, k))
+        cmds = [m for t, m in out if isinstance(m, Command)]  # (its first estimate goes on the same key)
+        assert len(cmds) == 1 and cmds[0].tick == k, k  # acted once per tick, never stuck
+        commands += 1
+        held4 = agent.estimates.get(4)
+        assert held4 is None or held4.tick == k - 2  # two ticks late, exactly
+    counts = inbox.links
+    assert counts["agent:2->agent:3/estimate"].dropped > 10
+    assert counts["agent:4->agent:3/estimate"].delayed == 50
+
+
+def test_a_lost_sensing_message_still_starts_the_tick_but_replays_old_content_then_stops_the_robot():
+    sc = load(PAPER_FAST)
+    p = FaultPlan(seed=1, cuts=(Cut(0.05, 10.0, (("world", "agent:3"),), (), ("sense",)),))
+    inbox = FaultyInbox(AgentNode(sc, 3), "agent:3", p, sc.dt)
+    speeds = []
+    for k in range(100):
+        sense = Sense("world", 0, k + 1, k, k * 0.01, 3, np.array([k * 1.0, 0, 0]), None, None)
+        out = inbox.handle("world/sense/3", sense)
+        out += inbox.handle("agent/2/estimate", _estimate(2, k))
+        out += inbox.handle("agent/4/estimate", _estimate(4, k))
+        (cmd,) = [m for t, m in out if isinstance(m, Command)]
+        speeds.append(np.linalg.norm(cmd.v))
+        if k >= 5:
+            assert isinstance(inbox.node.sense, ReplayedSense) and inbox.node.sense.p[0] == 4.0
+    # Last sensed at tick 4 (0.04 s); the limit is 0.5 s: zero velocity from tick 55 on, flagged.
+    assert min(speeds[:55]) > 0 and max(speeds[55:]) == 0.0
+    assert inbox.node.degraded_ticks["no_sensing"] == 45
+
+
+def test_mortal_node_dies_restarts_fresh_and_a_frozen_one_gets_its_backlog():
+    sc = load(PAPER_FAST)
+    built = []
+
+    def build():
+        built.append(AgentNode(sc, 1))
+        return built[-1]
+
+    # The node's time is its own sensing's (a leader state, like an estimate, is sent a tick
+    # early in lock-step, so one past a kill or restart waits for the node's time to get there).
+    def sense(k: int, t: float) -> tuple[str, Sense]:
+        return "world/sense/1", Sense("world", 0, k, k, t, 1, np.zeros(3), None, None)
+
+    m = Mortal(build, [ProcessFault("agent:1", "kill", 0.1, 0.2)])
+    assert m.handle("clock", Clock("world", 0, 1, 5, 0.05)) == []
+    assert m.handle(*sense(15, 0.15)) == []
+    assert m.handle("leader/state", LeaderState("leader", 0, 1, 15, 0.15, np.ones(3))) == []
+    assert built[0].leader is None and built[0].sense is None  # dead: heard nothing
+    m.handle(*sense(25, 0.25))
+    m.handle("leader/state", LeaderState("leader", 0, 1, 25, 0.25, np.ones(3)))
+    assert len(built) == 2 and m.restarts == 1 and built[1].leader.tick == 25
+
+    f = Mortal(lambda: AgentNode(sc, 1), [ProcessFault("agent:1", "freeze", 0.1, 0.2)])
+    f.handle(*sense(15, 0.15))
+    f.handle("leader/state", LeaderState("leader", 0, 1, 15, 0.15, np.ones(3)))
+    assert f.node.leader is None and len(f.backlog) == 2
+    f.handle(*sense(21, 0.21))
+    f.handle("leader/state", LeaderState("leader", 0, 1, 21, 0.21, np.ones(3)))
+    assert f.node.leader.tick == 21 and not f.backlog
+
+
+def test_process_schedule_fires_each_signal_once_when_its_time_comes():
+    s = ProcessSchedule((ProcessFault("agent:2", "kill", 10.0, 12.0), ProcessFault("leader", "freeze", 5.0, 6.0)))
+    assert s.due(4.0) == []
+    assert s.due(5.5) == [("freeze", "leader")]
+    assert s.due(11.0) == [("thaw", "leader"), ("kill", "agent:2")]
+    assert s.due(12.0) == [("restart", "agent:2")] and s.due(20.0) == []
+
+
+def _commands_of(arrival_seed: int | None, ticks: int = 60) -> list[tuple]:
+    """Robot 3 behind a lossy, slow, duplicating filter, fed one tick at a time. With a seed, each
+    tick's messages arrive shuffled, and each delayed estimate physically arrives at a random
+    moment between its sending and its release tick (as over a network); None: in order."""
+    import random
+
+    sc = load(PAPER_FAST)
+    p = FaultPlan(seed=2, rules=(LinkRule("agent:2", "agent:3", ("estimate",), drop=0.3, duplicate=0.2),
+                                 LinkRule("agent:4", "agent:3", ("estimate",), delay=0.02, jitter=0.03)))
+    inbox = FaultyInbox(AgentNode(sc, 3), "agent:3", p, sc.dt)
+    rng = random.Random(arrival_seed)
+    in_flight: dict[int, list] = {}
+    commands = []
+    for k in range(ticks):
+        ph2, ph4 = np.array([0.1 * k, 1.0, 2.0]), np.array([0.0, 0.2 * k, -1.0])
+        sense = Sense("world", 0, k + 1, k, k * 0.01, 3, np.array([1.0, 2.0, 0.1 * k]), None, None)
+        pool = [("world/sense/3", sense)]
+        for j, ph in ((2, ph2), (4, ph4)):
+            msg = _estimate(j, k, ph)
+            fate = p.fate(f"agent:{j}", "agent:3", "estimate", k, k * 0.01)
+            late = int(round(fate.delay / sc.dt))
+            arrive = k if arrival_seed is None or late == 0 else rng.randint(k, k + late)
+            in_flight.setdefault(arrive, []).append((f"agent/{j}/estimate", msg))
+        pool += in_flight.pop(k, [])
+        if arrival_seed is not None:
+            rng.shuffle(pool)
+        for topic, msg in pool:
+            for t, m in inbox.handle(topic, msg):
+                if isinstance(m, Command):
+                    commands.append((m.tick, tuple(m.v), tuple(m.ph), m.flags))
+    return commands
+
+
+def test_the_filtered_agent_acts_the_same_whatever_the_arrival_order():
+    canonical = _commands_of(None)
+    assert [c[0] for c in canonical] == list(range(60))  # one command per tick, none stuck
+    # (without the filter holding a tick back until its delayed messages arrived, all differ)
+    for seed in range(6):
+        assert _commands_of(seed) == canonical, seed

@@ -1,0 +1,257 @@
+"""`fxswarm keys`, the key-file checks and the rules, without a Zenoh session.
+
+Bad key files are refused before any process starts: one line naming the file, exit 2.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import shutil
+import stat
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from cryptography import x509
+from cryptography.x509.oid import ExtendedKeyUsageOID
+
+from fxswarm.core.scenario import load
+from fxswarm.launch.compose import compose_file
+from fxswarm.runtime.tls import KeyFileError, check, checked, common_name, files_for
+from fxswarm.security.keys import write_keys
+from fxswarm.security.policy import access_control, process_names, rights
+
+REPO = Path(__file__).resolve().parents[2]
+SCENARIO = REPO / "configs" / "paper-fast.toml"
+
+
+@pytest.fixture(scope="module")
+def sc():
+    return load(SCENARIO)
+
+
+@pytest.fixture(scope="module")
+def keys(tmp_path_factory, sc) -> Path:
+    folder = tmp_path_factory.mktemp("keys")
+    write_keys(folder, sc)
+    return folder
+
+
+def fxswarm(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "fxswarm.cli", *args], capture_output=True, text=True, timeout=120,
+                          cwd=cwd)
+
+
+def test_keys_command_writes_a_ca_and_one_private_pair_per_process(tmp_path, sc):
+    out = tmp_path / "k"
+    r = fxswarm("keys", str(out), str(SCENARIO), "--days", "30")
+    assert r.returncode == 0, r.stderr
+    names = ["router", "world", "leader", "logger", "observer", *(f"agent-{i}" for i in range(1, 7))]
+    assert process_names(sc) == names
+    ca = x509.load_pem_x509_certificate((out / "ca.pem").read_bytes())
+    for name in names:
+        assert stat.S_IMODE((out / f"{name}.key").stat().st_mode) == 0o600
+        cert = x509.load_pem_x509_certificate((out / f"{name}.pem").read_bytes())
+        assert common_name(cert) == name and cert.issuer == ca.subject
+        assert 29 <= (cert.not_valid_after_utc - cert.not_valid_before_utc).days <= 31
+        usage = cert.extensions.get_extension_for_class(x509.ExtendedKeyUsage).value
+        # Every process serves TLS (a mesh peer listens) and is a TLS client: rights go by the rules.
+        assert {ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH} <= set(usage)
+        check(files_for(out, name))
+    assert stat.S_IMODE((out / "ca.key").stat().st_mode) == 0o600
+    again = fxswarm("keys", str(out), str(SCENARIO))  # never overwritten by accident
+    assert again.returncode == 2 and "already holds keys" in again.stderr
+
+
+def test_adding_a_robot_keeps_the_ca_and_the_other_keys(tmp_path, sc):
+    out = tmp_path / "k"
+    write_keys(out, sc)
+    before = (out / "agent-1.pem").read_bytes()
+    (out / "agent-6.pem").unlink()
+    (out / "agent-6.key").unlink()
+    assert write_keys(out, sc, add=True) == ["agent-6"]
+    assert (out / "agent-1.pem").read_bytes() == before
+    check(files_for(out, "agent-6"))
+
+
+def _bad(tmp_path: Path, keys: Path, how: str) -> tuple[Path, Path]:
+    """A copy of ``keys`` with agent-3's files spoiled ``how``; the file to be named."""
+    folder = tmp_path / how
+    shutil.copytree(keys, folder)
+    if how == "missing":
+        (folder / "agent-3.key").unlink()
+        return folder, folder / "agent-3.key"
+    if how == "unreadable":  # a folder in place of the file: unreadable even by root
+        (folder / "agent-3.pem").unlink()
+        (folder / "agent-3.pem").mkdir()
+        return folder, folder / "agent-3.pem"
+    if how == "expired":
+        old = tmp_path / "old"
+        write_keys(old, load(SCENARIO), days=1, now=dt.datetime.now(dt.timezone.utc) - dt.timedelta(days=3))
+        for f in ("ca.pem", "agent-3.pem", "agent-3.key"):
+            shutil.copy(old / f, folder / f)
+        return folder, folder / "ca.pem"
+    if how == "wrong-ca":
+        other = tmp_path / "other"
+        write_keys(other, load(SCENARIO))
+        for f in ("agent-3.pem", "agent-3.key"):
+            shutil.copy(other / f, folder / f)
+        return folder, folder / "agent-3.pem"
+    if how == "wrong-key":
+        shutil.copy(folder / "agent-4.key", folder / "agent-3.key")
+        return folder, folder / "agent-3.key"
+    raise ValueError(how)
+
+
+@pytest.mark.parametrize("how,says", [("missing", "missing"), ("unreadable", "cannot read"),
+                                      ("expired", "expired"), ("wrong-ca", "does not verify"),
+                                      ("wrong-key", "does not belong")])
+def test_a_bad_key_file_is_named_and_nothing_starts(tmp_path, keys, how, says):
+    folder, named = _bad(tmp_path, keys, how)
+    with pytest.raises(KeyFileError, match=says) as err:
+        checked(folder, "agent-3")
+    assert str(named) in str(err.value)
+    out = tmp_path / "run"
+    r = fxswarm("run", str(SCENARIO), "--secure", str(folder), "--out", str(out), "--quiet")
+    assert r.returncode == 2, r.stderr
+    assert str(named) in r.stderr and says in r.stderr
+    assert not (out / "logs").exists()  # no process was started
+    r = fxswarm("agent", str(SCENARIO), "--id", "3", "--secure", str(folder), "--connect", "tls/127.0.0.1:9")
+    assert r.returncode == 2 and str(named) in r.stderr
+
+
+@pytest.mark.parametrize("how,says", [("missing", "missing"), ("wrong-ca", "does not verify")])
+def test_attach_names_a_bad_key_file_before_it_connects(tmp_path, keys, how, says):
+    folder = tmp_path / "keys"
+    shutil.copytree(keys, folder)
+    named = folder / "observer.pem"
+    if how == "missing":
+        named.unlink()
+    else:
+        other = tmp_path / "other"
+        write_keys(other, load(SCENARIO))
+        shutil.copy(other / "observer.pem", named)
+        shutil.copy(other / "observer.key", folder / "observer.key")
+    out = tmp_path / "seen"
+    # Port 9 (discard): nothing answers there, so only a check before connecting ends this at once.
+    r = fxswarm("attach", "tls/127.0.0.1:9", "--swarm", "s", "--out", str(out), "--secure", str(folder),
+                "--timeout", "30")
+    assert r.returncode == 2, r.stderr
+    (line,) = r.stderr.strip().splitlines()
+    assert str(named) in line and says in line
+    assert not out.exists()
+    r = fxswarm("attach", "tcp/127.0.0.1:9", "--swarm", "s", "--out", str(out), "--secure", str(keys))
+    assert r.returncode == 2 and "tls/HOST:PORT" in r.stderr and not out.exists()
+
+
+def test_secure_mode_is_plaintext_free_and_an_audited_run_is_routed(tmp_path, keys):
+    r = fxswarm("run", str(SCENARIO), "--secure", str(keys), "--audit", "--topology", "mesh",
+                "--out", str(tmp_path / "r"))
+    assert r.returncode == 2 and "routed" in r.stderr
+    r = fxswarm("agent", str(SCENARIO), "--id", "1", "--secure", str(keys), "--connect", "tcp/127.0.0.1:7447")
+    assert r.returncode == 2 and "tls/" in r.stderr
+    r = fxswarm("world", str(SCENARIO), "--secure", str(keys), "--mode", "peer", "--connect", "tls/127.0.0.1:9",
+                "--listen", "tcp/127.0.0.1:0")
+    assert r.returncode == 2 and "--listen tcp/127.0.0.1:0" in r.stderr and "tls/" in r.stderr
+    r = fxswarm("world", str(SCENARIO), "--secure", str(keys), "--mode", "router", "--connect", "tls/127.0.0.1:9")
+    assert r.returncode == 2 and "client" in r.stderr
+    r = fxswarm("world", str(SCENARIO), "--mode", "peer", "--access", str(keys / "access.json"))
+    assert r.returncode == 2 and "--secure" in r.stderr
+    r = fxswarm("router", "--secure", str(keys), "--listen", "tcp/127.0.0.1:0")
+    assert r.returncode == 2 and "tls/" in r.stderr
+
+
+def test_rights_follow_the_nodes_subscriptions_and_the_graph(sc):
+    r = rights(sc)
+    # Robot 1: neighbours 2 and 6, pinned; robot 2: neighbours 1 and 3, not pinned.
+    # A neighbour's estimate rides on its command: a robot hears its neighbours' command keys.
+    assert sorted(r["agent-1"]["hear"]) == sorted(["world/sense/1", "agent/2/cmd", "agent/6/cmd", "leader/state"])
+    assert sorted(r["agent-2"]["hear"]) == sorted(["world/sense/2", "agent/1/cmd", "agent/3/cmd"])
+    assert r["leader"]["hear"] == ["world/sense/1"] and r["world"]["put"] == ["world/**"]
+    assert r["agent-2"]["put"] == ["agent/2/**"] and r["logger"]["put"] == [] and r["observer"]["put"] == []
+    assert sorted(r["world"]["hear"]) == sorted(f"agent/{i}/cmd" for i in range(1, 7))
+    acl = access_control(sc, "s")
+    assert acl["default_permission"] == "deny" and acl["enabled"]
+    by_id = {rule["id"]: rule for rule in acl["rules"]}
+    assert by_id["agent-2-put"]["key_exprs"] == ["fxswarm/s/agent/2/**"]
+    assert by_id["agent-2-put"]["flows"] == ["ingress"]
+    subjects = {s["id"]: s["cert_common_names"] for s in acl["subjects"]}
+    assert sorted(n for names in subjects.values() for n in names) == sorted(process_names(sc))
+
+
+def test_the_observer_may_ask_the_router_for_the_scenario_and_announce_itself_and_no_more(sc):
+    """`fxswarm attach --secure` shows the observer's certificate: it reads world/state, asks for the
+    scenario (a query in, its reply out) and declares an observer token; it says nothing else."""
+    r = rights(sc)
+    assert r["observer"] == {"put": [], "hear": ["world/state"], "tokens": ["alive/observer/*"], "ask": ["scenario"]}
+    assert all(not rights_.get("ask") for name, rights_ in r.items() if name != "observer")
+    acl = access_control(sc, "s")
+    by_id = {rule["id"]: rule for rule in acl["rules"]}
+    assert by_id["observer-ask"] == {"id": "observer-ask", "messages": ["query"], "flows": ["ingress"],
+                                     "permission": "allow", "key_exprs": ["fxswarm/s/scenario"]}
+    assert by_id["observer-answer"] == {"id": "observer-answer", "messages": ["reply"], "flows": ["egress"],
+                                        "permission": "allow", "key_exprs": ["fxswarm/s/scenario"]}
+    assert by_id["observer-token"]["key_exprs"] == ["fxswarm/s/alive/observer/*"]
+    # No other rule lets anyone query, nor be sent a reply outside liveliness.
+    queries = [rule["id"] for rule in acl["rules"] if "query" in rule["messages"]]
+    replies = [rule["id"] for rule in acl["rules"] if "reply" in rule["messages"]]
+    assert queries == ["observer-ask"] and sorted(replies) == ["liveliness-news", "observer-answer"]
+    (mine,) = [p for p in acl["policies"] if p["id"] == "p-observer"]
+    assert sorted(mine["rules"]) == ["observer-answer", "observer-ask", "observer-hear", "observer-subscribe",
+                                     "observer-token"]
+
+
+def test_secure_compose_gives_each_service_its_own_key_as_secrets(tmp_path, sc, keys):
+    text = compose_file(sc, "configs/paper-fast.toml", tmp_path, REPO, keys=keys)
+    assert "tcp/" not in text and '"tls/router:7447"' in text
+    # Each agent service holds the CA and its own pair only, as secrets from files in KEYS.
+    block = text.split("\n  agent-3:\n")[1].split("\n\n")[0]
+    assert 'secrets: ["ca.pem", "agent-3.pem", "agent-3.key"]' in block
+    assert '"${FXSWARM_UID:-10001}:${FXSWARM_GID:-10001}"' in block
+    tail = text.split("\nsecrets:\n")[1]
+    assert f'file: "{keys}/agent-3.key"' in tail or 'agent-3.key:\n    file:' in tail
+    assert "FXSWARM_SECURE" in text and json.loads((keys / "access.json").read_text())["default_permission"] == "deny"
+
+
+def test_a_mesh_peer_needs_a_server_certificate_and_the_rules(tmp_path, keys):
+    """Keys of an older fxswarm (only the router's certificate could serve TLS) are named up front, as is
+    a missing rules file; a client still takes them."""
+    from fxswarm.security.keys import _cert_pem, _key_pem, make_ca, make_leaf
+
+    old = tmp_path / "old"
+    old.mkdir()
+    ca_key, ca = make_ca(30)
+    (old / "ca.pem").write_bytes(_cert_pem(ca))
+    key, cert = make_leaf("agent-1", ca_key, ca, 30)
+    cert_without_server = (x509.CertificateBuilder().subject_name(cert.subject).issuer_name(cert.issuer)
+                           .public_key(cert.public_key()).serial_number(cert.serial_number)
+                           .not_valid_before(cert.not_valid_before_utc).not_valid_after(cert.not_valid_after_utc)
+                           .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.CLIENT_AUTH]), critical=False)
+                           .sign(ca_key, cert.signature_hash_algorithm))
+    (old / "agent-1.pem").write_bytes(_cert_pem(cert_without_server))
+    (old / "agent-1.key").write_bytes(_key_pem(key))
+    checked(old, "agent-1")  # a client: fine
+    with pytest.raises(KeyFileError, match="not a TLS server certificate") as err:
+        checked(old, "agent-1", server=True)
+    assert str(old / "agent-1.pem") in str(err.value)
+    r = fxswarm("agent", str(SCENARIO), "--id", "1", "--secure", str(old), "--mode", "peer",
+                "--connect", "tls/127.0.0.1:9")
+    assert r.returncode == 2 and "agent-1.pem" in r.stderr and "server" in r.stderr
+    r = fxswarm("agent", str(SCENARIO), "--id", "1", "--secure", str(keys), "--mode", "peer",
+                "--connect", "tls/127.0.0.1:9", "--access", str(tmp_path / "nowhere.json"))
+    assert r.returncode == 2 and "nowhere.json: missing" in r.stderr
+
+
+def test_each_secure_session_trusts_only_the_router_to_forward_and_a_peer_enforces_the_rules(sc):
+    from fxswarm.runtime.tls import session_rules
+
+    client = session_rules("client", None)
+    assert client["default_permission"] == "deny"
+    assert [s["cert_common_names"] for s in client["subjects"]] == [["router"]]
+    acl = access_control(sc, "s")
+    peer = session_rules("peer", acl)
+    assert peer["rules"][:len(acl["rules"])] == acl["rules"] and len(peer["subjects"]) == len(acl["subjects"]) + 1
+    with pytest.raises(ValueError, match="--access"):
+        session_rules("peer", None)

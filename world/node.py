@@ -1,0 +1,440 @@
+"""The world node: integrates the robots, moves the obstacles, tells each robot what it senses.
+
+Sans I/O. Lock-step: :meth:`start` emits tick 0; every ``Command(k)`` is
+held; once all robots' commands for tick ``k`` are in (or :meth:`timeout`
+is called), it integrates ``p += dt * v``, records the tick and emits tick
+``k+1``. Real time: :meth:`advance` integrates on the commands it holds.
+It records the whole run for ``trajectory.npz``.
+
+When to close a tick without every command (:class:`TickTimer`, lock-step)
+and when to tick, hold the clock or count a tick late (:class:`RealTimeWorld`,
+real time) are decided here too, on an injectable clock
+(``fxswarm.core.pacing``): the process only waits, feeds and publishes.
+
+Link health: each robot's ``Command`` reports, per link into it, the age of
+the estimate it holds and the messages it missed; the world publishes them
+in ``WorldState`` per directed link (:func:`directed_links`), the age grown
+by the ticks since that robot's report (a silent robot's links age).
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+import math
+from collections.abc import Collection
+
+import numpy as np
+
+from fxswarm.core import bus as topics
+from fxswarm.core.messages import Command, Message, Sense, WorldState
+from fxswarm.core.motion import Static
+from fxswarm.core.pacing import Deadline, Pacer, WallClock
+from fxswarm.core.scenario import Scenario
+from fxswarm.faults.plan import DegradedLimits, degraded_limits
+
+
+def nearest_objects(p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, obstacle_v: np.ndarray):
+    """For each robot, its nearest object among the obstacles and the other robots.
+
+    p, v: robots' positions and velocities (n, 3); obstacles, obstacle_v: (m, 3).
+    Returns ``(po, vo, dist, is_obstacle)`` of shapes (n, 3), (n, 3), (n,), (n,),
+    and ``obstacle_dist`` (n,): the distance to the nearest obstacle alone
+    (inf without obstacles). With one robot and no obstacle, ``dist`` is inf.
+    """
+    n = len(p)
+    objects = np.concatenate([obstacles, p])
+    object_v = np.concatenate([obstacle_v, v])
+    diff = p[:, None, :] - objects[None, :, :]
+    dist = np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
+    m = len(obstacles)
+    rows, own = _self_index(n, m)
+    dist[rows, own] = np.inf  # a robot is not its own nearest object
+    obstacle_dist = dist[:, :m].min(axis=1) if m else np.full(n, np.inf)
+    k = dist.argmin(axis=1)
+    return objects[k], object_v[k], dist[rows, k], k < m, obstacle_dist
+
+
+@functools.lru_cache(maxsize=8)
+def _self_index(n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(arange(n), m + arange(n))``, read-only: built once per swarm shape, not every tick."""
+    rows, own = np.arange(n), m + np.arange(n)
+    rows.setflags(write=False)
+    own.setflags(write=False)
+    return rows, own
+
+
+class WorldNode:
+    """The world of scenario ``sc``: robots' true state, obstacles, the clock, the record."""
+
+    def __init__(self, scenario: Scenario, record: bool = True, limits: DegradedLimits | None = None) -> None:
+        self.sc = scenario
+        n, ticks = scenario.n, scenario.ticks
+        self.p = np.array([r.position for r in scenario.robots], dtype=float)
+        self.v = np.zeros((n, 3))  # held commands (zero until a robot speaks)
+        self.ph = np.array([r.estimate for r in scenario.robots], dtype=float)
+        self.avoid = np.zeros(n, dtype=bool)
+        self.tick = 0
+        self.commands: dict[int, Command] = {}  # commands received for the current tick
+        self.missed_ticks = 0
+        self.misses = np.zeros(n, dtype=int)
+        self.seq = 0
+        self.done = False
+        # Faults (docs/design.md "Fault model"): which commands to wait for, silent robots, degraded modes.
+        self.expects = None  # lock-step: expects("agent:<id>", tick) -> bool, set by a fault filter
+        self.limits = limits if limits is not None else degraded_limits(scenario)  # the run's plan's, else the file's
+        self.silent_s = np.zeros(n)  # how long each robot's agent has been silent, s
+        self._anyone_silent = False  # whether silent_s has a non-zero entry (fast path when not)
+        self.held_at_zero = np.zeros(n, dtype=int)  # ticks a silent robot was held at zero velocity
+        self.flag_ticks = np.zeros((n, 8), dtype=int)  # ticks each Command.flags bit was set, per robot
+        self._heard: set[int] = set()  # real time: robots heard since the last advance
+        self._sensed: tuple | None = None
+        # Static obstacles never move: their (read-only) state is built once, not every tick.
+        self._fixed_obstacles = None
+        if all(isinstance(o, Static) for o in scenario.obstacles):
+            self._fixed_obstacles = self.obstacle_state(0.0)
+            for a in self._fixed_obstacles:
+                a.setflags(write=False)
+        # Link health (see the module's docstring): each robot's last report and the tick it was for.
+        self.in_degree = [len(scenario.neighbours(r.id)) + scenario.is_pinned(r.id) for r in scenario.robots]
+        self._link_age: list[tuple[int, ...]] = [(0,) * m for m in self.in_degree]
+        self._link_drops: list[tuple[int, ...]] = [(0,) * m for m in self.in_degree]
+        self._link_tick = [-1] * n
+        self._links_key: tuple | None = None  # what the cached arrays were built from
+        self._links_cached: tuple[np.ndarray, np.ndarray] | None = None
+        self.link_reports_invalid = 0  # commands whose link reports had the wrong number of links
+        self.record = record
+        if record:
+            self.rec_t = np.arange(ticks) * scenario.dt
+            self.rec_p = np.zeros((ticks, n, 3))
+            self.rec_ph = np.zeros((ticks, n, 3))
+            self.rec_v = np.zeros((ticks, n, 3))
+            self.rec_near = np.zeros((ticks, n))
+            self.rec_near_obstacle = np.zeros((ticks, n))
+            self.rec_avoid = np.zeros((ticks, n), dtype=bool)
+            self.rec_obstacles = np.zeros((ticks, len(scenario.obstacles), 3))
+
+    @property
+    def t(self) -> float:
+        return self.tick * self.sc.dt
+
+    def subscriptions(self) -> list[str]:
+        return [topics.command_topic(r.id) for r in self.sc.robots]
+
+    def obstacle_state(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        obs = self.sc.obstacles
+        if not obs:
+            return np.zeros((0, 3)), np.zeros((0, 3))
+        return np.array([o.position(t) for o in obs]), np.array([o.velocity(t) for o in obs])
+
+    # --- lock-step ----------------------------------------------------------------------
+
+    def start(self) -> list[topics.Outgoing]:
+        """Emit tick 0."""
+        return self._emit_tick()
+
+    def handle(self, topic: str, msg: Message) -> list[topics.Outgoing]:
+        if not isinstance(msg, Command) or self.done:
+            return []
+        if msg.tick == self.tick:
+            self.commands[msg.robot] = msg
+            if len(self.commands) == self.sc.n or (self.expects is not None and not self.waiting_for()):
+                return self._finish_tick()
+        elif msg.tick > self.tick:
+            return []  # from the future: cannot happen in lock-step; ignore
+        return []
+
+    def is_late(self, msg: Message) -> bool:
+        """Lock-step: whether ``msg`` is a command for a tick already closed (counted stale)."""
+        return isinstance(msg, Command) and msg.tick < self.tick
+
+    def waiting_for(self) -> list[int]:
+        """Robots whose command for the current tick has not arrived."""
+        missing = [r.id for r in self.sc.robots if r.id not in self.commands]
+        if self.expects is not None:  # a fault filter knows these will not come this tick
+            missing = [r for r in missing if self.expects(f"agent:{r}", self.tick)]
+        return missing
+
+    def timeout(self) -> list[topics.Outgoing]:
+        """A tick's deadline passed: hold the last command of each silent robot and go on."""
+        if self.done:
+            return []
+        missing = self.waiting_for()
+        self.missed_ticks += 1 if missing else 0
+        for rid in missing:
+            self.misses[rid - 1] += 1
+        return self._finish_tick()
+
+    def _finish_tick(self) -> list[topics.Outgoing]:
+        for rid, cmd in self.commands.items():
+            self.v[rid - 1] = cmd.v
+            self.ph[rid - 1] = cmd.ph
+            self.avoid[rid - 1] = cmd.avoid_active
+            if cmd.flags:
+                self.flag_ticks[rid - 1] += (cmd.flags >> np.arange(8)) & 1
+            self._take_links(cmd)
+        self._note_silence(self.commands, self.sc.dt)
+        self.commands = {}
+        out = [self._state_message()]
+        self._record()
+        self.p = self.p + self.sc.dt * self.v  # explicit Euler (SPEC section 7)
+        self.tick += 1
+        if self.tick >= self.sc.ticks:
+            self.done = True
+            return out
+        return out + self._emit_tick()
+
+    # --- real time ----------------------------------------------------------------------
+
+    def take_command(self, msg: Command) -> None:
+        """Real time: hold a robot's latest command (zero-order hold)."""
+        self.v[msg.robot - 1] = msg.v
+        self.ph[msg.robot - 1] = msg.ph
+        self.avoid[msg.robot - 1] = msg.avoid_active
+        self._heard.add(msg.robot)
+        if msg.flags:
+            self.flag_ticks[msg.robot - 1] += (msg.flags >> np.arange(8)) & 1
+        self._take_links(msg)
+
+    def advance(self, dt: float) -> list[topics.Outgoing]:
+        """Real time: record, integrate ``dt`` seconds on the held commands, emit the next tick."""
+        self._note_silence(self._heard, dt)
+        self._heard = set()
+        out = [self._state_message()]
+        self._record()
+        self.p = self.p + dt * self.v
+        self.tick += 1
+        if self.tick >= self.sc.ticks:
+            self.done = True
+            return out
+        return out + self._emit_tick()
+
+    # --- shared -------------------------------------------------------------------------
+
+    def _note_silence(self, heard, dt: float) -> None:
+        """Robots not ``heard`` this step keep their last command until silent longer than
+        the limit; then the world holds them at zero velocity (a robot whose agent died stops)."""
+        if len(heard) == self.sc.n and not self._anyone_silent:
+            return  # the usual case: everyone heard and nobody was silent, so nothing changes
+        silent = np.ones(self.sc.n, dtype=bool)
+        silent[[r - 1 for r in heard]] = False
+        self.silent_s = np.where(silent, self.silent_s + dt, 0.0)
+        self._anyone_silent = bool(silent.any())
+        hold = silent & (self.silent_s > self.limits.silent_hold + 1e-9)
+        if hold.any():
+            self.v[hold] = 0.0
+            self.held_at_zero += hold
+
+    def _take_links(self, cmd: Command) -> None:
+        """Hold robot ``cmd.robot``'s link report (one with the wrong number of links is counted, not held)."""
+        i = cmd.robot - 1
+        m = self.in_degree[i]
+        if len(cmd.link_age) != m or len(cmd.link_drops) != m:
+            self.link_reports_invalid += 1
+            return
+        self._link_age[i], self._link_drops[i], self._link_tick[i] = cmd.link_age, cmd.link_drops, cmd.tick
+
+    def link_health(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(age, drops)`` per directed link (:func:`directed_links` order), int64 (L,), at this
+        tick; read-only, and the same arrays as the last tick's while nothing changed (the usual
+        lock-step case: every robot reports zeros every tick)."""
+        k = self.tick
+        since = tuple([k - t if t < k else 0 for t in self._link_tick])  # ticks since each robot's report
+        key = (tuple(self._link_age), tuple(self._link_drops), since)
+        if key == self._links_key:
+            return self._links_cached
+        age = np.fromiter(itertools.chain.from_iterable(self._link_age), dtype=np.int64)
+        drops = np.fromiter(itertools.chain.from_iterable(self._link_drops), dtype=np.int64)
+        age += np.repeat(np.array(since, dtype=np.int64), self.in_degree)
+        age.setflags(write=False)
+        drops.setflags(write=False)
+        self._links_key, self._links_cached = key, (age, drops)
+        return age, drops
+
+    def _sense_now(self):
+        t = self.t
+        obstacles, obstacle_v = self._fixed_obstacles or self.obstacle_state(t)
+        po, vo, dist, _, obstacle_dist = nearest_objects(self.p, self.v, obstacles, obstacle_v)
+        self._sensed = (obstacles, dist, obstacle_dist)
+        return po, vo, dist
+
+    def _emit_tick(self) -> list[topics.Outgoing]:
+        t, k = self.t, self.tick
+        po, vo, dist = self._sense_now()
+        self.seq += 1
+        out: list[topics.Outgoing] = []  # no clock message: the leader takes the tick from robot 1's sensing
+        # Rows of fresh arrays (one copy of p, po and vo are new), and plain floats for the test:
+        # numpy calls per robot cost more than the work (issue 2).
+        for r, p_i, po_i, vo_i, dist_i in zip(self.sc.robots, self.p.copy(), po, vo, dist.tolist()):
+            has = math.isfinite(dist_i)
+            out.append((topics.sense_topic(r.id), Sense(
+                "world", 0, self.seq, k, t, r.id, p_i, po_i if has else None, vo_i if has else None)))
+        return out
+
+    def _state_message(self) -> topics.Outgoing:
+        obstacles, dist, _ = self._sensed if self._sensed is not None else self._sense_now()
+        return topics.WORLD_STATE, WorldState(
+            "world", 0, self.seq, self.tick, self.t, self.p.copy(), self.v.copy(), self.ph.copy(),
+            np.where(np.isfinite(dist), dist, -1.0), self.avoid.copy(), obstacles.copy(), *self.link_health())
+
+    def _record(self) -> None:
+        k = self.tick
+        if not self.record or k >= self.sc.ticks:
+            return
+        obstacles, dist, obstacle_dist = self._sensed if self._sensed is not None else self._sense_now()
+        self.rec_p[k] = self.p
+        self.rec_ph[k] = self.ph
+        self.rec_v[k] = self.v
+        self.rec_near[k] = dist
+        self.rec_near_obstacle[k] = obstacle_dist
+        self.rec_avoid[k] = self.avoid
+        self.rec_obstacles[k] = obstacles
+
+    def trajectory(self) -> dict[str, np.ndarray]:
+        """The recorded run, as saved to ``trajectory.npz`` (shapes in README)."""
+        ticks = min(self.tick, self.sc.ticks)
+        t = self.rec_t[:ticks]
+        return {
+            "t": t,
+            "p": self.rec_p[:ticks],
+            "ph": self.rec_ph[:ticks],
+            "p0": np.array([self.sc.leader.position(x) for x in t]).reshape(-1, 3),
+            "v": self.rec_v[:ticks],
+            "nearest_distance": self.rec_near[:ticks],
+            "obstacle_distance": self.rec_near_obstacle[:ticks],
+            "avoid_active": self.rec_avoid[:ticks],
+            "obstacles": self.rec_obstacles[:ticks],
+            "offsets": np.stack([r.offset.positions(t) for r in self.sc.robots], axis=1).reshape(-1, self.sc.n, 3),
+        }
+
+
+class TickTimer:
+    """Lock-step: closes a tick whose commands do not all arrive within ``timeout`` s of
+    ``clock`` (the silent robots hold their last command and the miss is counted:
+    :meth:`WorldNode.timeout`), or at once when every robot still missing is gone. So a
+    dead or frozen process never deadlocks the run."""
+
+    def __init__(self, world: WorldNode, timeout: float, clock: WallClock) -> None:
+        self.world = world
+        self.deadline = Deadline(timeout, clock)
+        self.tick = world.tick
+
+    def wait_s(self) -> float:
+        """Seconds until the current tick's deadline."""
+        return self.deadline.wait_s()
+
+    def check(self, gone: Collection[int] = ()) -> list[topics.Outgoing]:
+        """Close the current tick if its deadline has passed or every robot it waits for is in
+        ``gone`` (robot ids whose process has left); a new tick restarts the deadline."""
+        world = self.world
+        if world.done:
+            return []
+        if world.tick != self.tick:
+            self.tick = world.tick
+            self.deadline.restart()
+            return []
+        waiting = world.waiting_for()
+        if not self.deadline.passed() and not (waiting and all(r in gone for r in waiting)):
+            return []
+        out = world.timeout()
+        self.tick = world.tick
+        self.deadline.restart()
+        return out
+
+
+class RealTimeWorld:
+    """Real time: the world ticks every ``period`` s of ``clock`` on the latest command of each
+    robot (zero-order hold), and measures the latency from each sensing to its command.
+
+    A tick that starts more than a period late is counted (``late_ticks``) and the schedule
+    slips: the simulation runs slower than asked (reported as ``achieved_speed``) instead of
+    integrating missed ticks on stale commands, which a delayed fixed-time law does not
+    survive. Likewise the clock holds (``held_ticks``) while a live robot has not answered
+    for more than ``max_lag`` ticks (0: never): on a shared machine a robot starved of CPU is
+    an artefact (in the field each robot has its own), so the world waits for it, up to
+    ``hold_limit`` s at a time. ``sent_at[k]`` is the clock time the world sent sensing for
+    tick ``k``; the first command of each robot for tick ``k`` gives one latency sample.
+    """
+
+    def __init__(self, world: WorldNode, period: float, clock: WallClock, max_lag: int = 10,
+                 hold_limit: float = 1.0) -> None:
+        self.inner = world
+        self.clock = clock
+        self.pacer = Pacer(period, clock)
+        self.max_lag, self.hold_limit = max_lag, hold_limit
+        self.holding: Deadline | None = None  # running while the clock is held for a lagging robot
+        self.started: float | None = None
+        self.sent_at: dict[int, float] = {}
+        self.answered: set[tuple[int, int]] = set()
+        self.latencies: list[float] = []  # s
+        self.last_tick: dict[int, int] = {}  # robot -> the latest tick it has answered
+
+    def subscriptions(self) -> list[str]:
+        return self.inner.subscriptions()
+
+    def handle(self, topic: str, msg: Message) -> list:
+        if isinstance(msg, Command):
+            self.inner.take_command(msg)
+            if msg.tick > self.last_tick.get(msg.robot, -1):
+                self.last_tick[msg.robot] = msg.tick
+            sent = self.sent_at.get(msg.tick)
+            if sent is not None and (msg.robot, msg.tick) not in self.answered:
+                self.answered.add((msg.robot, msg.tick))
+                self.latencies.append(self.clock() - sent)
+        return []
+
+    def start(self) -> list[topics.Outgoing]:
+        """Emit tick 0 now; tick 1 is due one period later."""
+        self.started = self.clock()
+        self.pacer.next_due = self.started + self.pacer.period
+        out = self.inner.start()
+        self._sent(self.inner.tick)
+        return out
+
+    def lagging(self, alive: Collection[int]) -> bool:
+        """Whether a robot in ``alive`` (ids of live processes) is more than ``max_lag`` ticks behind."""
+        if self.max_lag <= 0:
+            return False
+        oldest = self.inner.tick - self.max_lag
+        return any(self.last_tick.get(r, -1) < oldest for r in alive)
+
+    def tick(self, alive: Collection[int] = ()) -> list[topics.Outgoing]:
+        """The pacer's tick is due: hold the clock for a lagging live robot (up to ``hold_limit``
+        s at a time), else integrate one ``dt`` on the held commands and emit the next tick."""
+        world = self.inner
+        if self.lagging(alive):
+            if self.holding is None:
+                self.holding = Deadline(self.hold_limit, self.clock)
+            if not self.holding.passed():
+                self.pacer.hold()
+                return []
+        self.holding = None
+        self.pacer.on_time()
+        out = world.advance(world.sc.dt)
+        self._sent(world.tick)
+        return out
+
+    def report(self) -> dict:
+        """``late_ticks``, ``held_ticks``, ``achieved_speed`` (simulation s per clock s) and
+        ``sense_to_command`` (:func:`latency_stats`)."""
+        elapsed = self.clock() - self.started if self.started is not None else 0.0
+        world = self.inner
+        return {"late_ticks": self.pacer.late, "held_ticks": self.pacer.held,
+                "achieved_speed": world.tick * world.sc.dt / elapsed if elapsed > 0 else None,
+                "sense_to_command": latency_stats(self.latencies)}
+
+    def _sent(self, tick: int) -> None:
+        self.sent_at[tick] = self.clock()
+        old = tick - 1000  # keep the maps bounded: a command later than 1000 ticks is no answer
+        self.sent_at.pop(old, None)
+        if len(self.answered) > 20_000:
+            self.answered = {(r, k) for r, k in self.answered if k > old}
+
+
+def latency_stats(samples: list[float]) -> dict:
+    """p50/p99/max of latencies given in s, reported in ms."""
+    if not samples:
+        return {"n": 0}
+    a = np.asarray(samples) * 1e3
+    return {"n": int(a.size), "p50_ms": float(np.percentile(a, 50)), "p99_ms": float(np.percentile(a, 99)),
+            "max_ms": float(a.max()), "mean_ms": float(a.mean())}
