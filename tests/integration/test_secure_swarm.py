@@ -166,16 +166,17 @@ def listening_ports(pid: int) -> set[int]:
 @pytest.mark.parametrize("topology", [None, "routed"])
 def test_secure_lockstep_equals_the_in_memory_sim_bit_for_bit(launch_swarm, keys, topology):
     """Secure, as a plain run: a mesh for these 6 robots unless told routed."""
-    swarm = launch_swarm(SCENARIO, secure=keys, duration=6.0, topology=topology)
+    # 30 s of flight: the checks below need every process alive (lock-step runs ~4x faster than real
+    # time, so 6 s of flight could end mid-check and leave zombies with no sockets to read).
+    swarm = launch_swarm(SCENARIO, secure=keys, duration=30.0, topology=topology)
     assert swarm.swarm.topology == (topology or "mesh")
-    # Liveliness and the health command work under the rules: an agent asks with its own key, a person
-    # as observer. (Not in the --audit run above: there the router's trace log can slow its answers.)
-    assert health(swarm, keys, "agent", "3").returncode == 0
-    assert health(swarm, keys, "router", "0", "--as", "observer").returncode == 0
     # Nothing listens in plaintext: routed, the router alone listens, on its TLS port; in a mesh each
     # peer listens too, on TLS, and no process was told tcp/.
     def listening_now() -> dict[str, set[int]]:
-        return {name: listening_ports(pid) for name, pid in swarm.pids().items()}
+        ports = {name: listening_ports(pid) for name, pid in swarm.pids().items()}
+        ended = [c.name for c in swarm.swarm.children.values() if not c.running()]
+        assert not ended, f"{ended} ended before their sockets were read (t = {swarm.sim_time():.2f} s)"
+        return ports
 
     want = (lambda ports: not ports) if topology == "routed" else (lambda ports: len(ports) == 1)
     listening = listening_now()
@@ -191,6 +192,10 @@ def test_secure_lockstep_equals_the_in_memory_sim_bit_for_bit(launch_swarm, keys
     for port in ports:
         plain = report(attacker(swarm, None, seconds=0.5, wait=2.0, connect=f"tcp/127.0.0.1:{port}"))
         assert not plain["connected"] and not plain["heard"], plain
+    # Liveliness and the health command work under the rules: an agent asks with its own key, a person
+    # as observer. (Not in the --audit run above: there the router's trace log can slow its answers.)
+    assert health(swarm, keys, "agent", "3").returncode == 0
+    assert health(swarm, keys, "router", "0", "--as", "observer").returncode == 0
     summary = swarm.wait_done(timeout=180)
     assert summary["complete"]
     swarm.assert_matches_sim()
