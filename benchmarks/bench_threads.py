@@ -70,9 +70,19 @@ def _kind(comm: str) -> str:
     return head if head in ("rx", "tx", "net", "acc") else ("python" if comm.startswith("python") else "other")
 
 
+def _switches(pid: int, tid: str) -> int:
+    """Context switches of one thread so far, voluntary (it blocked) and not (it was preempted)."""
+    total = 0
+    for line in Path(f"/proc/{pid}/task/{tid}/status").read_text().splitlines():
+        if line.endswith("ctxt_switches", 0, line.find(":")):
+            total += int(line.split()[1])
+    return total
+
+
 def cpu_by_thread(argv: list[str], env: dict | None = None) -> dict[str, float]:
-    """Run ``argv``; return CPU s per ``role/kind`` summed over the run's processes' threads."""
-    last: dict[tuple[int, int], tuple[str, str, float]] = {}
+    """Run ``argv``; return CPU s per ``role/kind`` summed over the run's processes' threads, and
+    their context switches per ``role/switches``."""
+    last: dict[tuple[int, int], tuple[str, str, float, int]] = {}
     roles: dict[int, str | None] = {}
     proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env, text=True)
     while proc.poll() is None:
@@ -92,18 +102,20 @@ def cpu_by_thread(argv: list[str], env: dict | None = None) -> dict[str, float]:
             for tid in tids:
                 try:
                     stat = Path(f"/proc/{pid}/task/{tid}/stat").read_text()
+                    switches = _switches(pid, tid)
                 except OSError:
                     continue
                 comm = stat[stat.index("(") + 1:stat.rindex(")")]
                 fields = stat[stat.rindex(")") + 2:].split()
-                last[(pid, int(tid))] = (role, _kind(comm), (int(fields[11]) + int(fields[12])) / HZ)
+                last[(pid, int(tid))] = (role, _kind(comm), (int(fields[11]) + int(fields[12])) / HZ, switches)
         time.sleep(0.2)
     err = proc.stderr.read()
     if proc.returncode != 0:
         raise RuntimeError(f"{argv[:4]} failed ({proc.returncode}): {err[-1500:]}")
     out: dict[str, float] = collections.defaultdict(float)
-    for role, kind, cpu in last.values():
+    for role, kind, cpu, switches in last.values():
         out[f"{role}/{kind}"] += cpu
+        out[f"{role}/switches"] += switches / 1e6  # per_tick_us scales by 1e6: this comes out per tick
     return dict(out)
 
 
@@ -146,14 +158,19 @@ def main() -> int:
                     argv = runtime_argv(config, Path(tmp), n) if name == "runtime" else floor_argv(config, n)
                     cpu[n] = cpu_by_thread(argv)
                 row = {"us_per_tick": per_tick_us(cpu[a.short], cpu[a.long], ticks), "load_avg": os.getloadavg()[0]}
-                row["us_per_tick"]["total"] = round(sum(v for k, v in row["us_per_tick"].items()), 1)
+                per_tick = row["us_per_tick"]
+                row["switches_per_tick"] = {k.split("/")[0]: per_tick.pop(k) for k in list(per_tick)
+                                            if k.endswith("/switches")}
+                per_tick["total"] = round(sum(per_tick.values()), 1)
+                row["switches_per_tick"]["total"] = round(sum(row["switches_per_tick"].values()), 1)
                 result[name].append(row)
                 print(name, i, json.dumps(row), file=sys.stderr)
-    result["median_us_per_tick"] = {
-        name: {k: statistics.median(r["us_per_tick"].get(k, 0.0) for r in result[name])
-               for k in result[name][0]["us_per_tick"]} for name in ("runtime", "floor")}
+    for what in ("us_per_tick", "switches_per_tick"):
+        result[f"median_{what}"] = {
+            name: {k: statistics.median(r[what].get(k, 0.0) for r in result[name]) for k in result[name][0][what]}
+            for name in ("runtime", "floor")}
     write_json(a.out, result)
-    print(json.dumps(result["median_us_per_tick"], indent=2))
+    print(json.dumps({k: result[k] for k in ("median_us_per_tick", "median_switches_per_tick")}, indent=2))
     return 0
 
 

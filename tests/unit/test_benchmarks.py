@@ -43,3 +43,14 @@ def test_targets_are_judged_on_medians_and_on_the_largest_agent_of_any_run():
     assert met["lockstep_ticks_per_s_6"] == {"median": 510.0, "met": True}
     assert met["realtime_p99_ms_6"] == {"median": 4.0, "met": True}
     assert met["rss_mb_per_agent"] == {"max": 85.0, "met": False}
+
+
+def test_perf_samples_are_grouped_by_library_and_turned_into_cpu_per_tick():
+    import bench_perf as perf
+
+    assert [perf._group(d) for d in ("(/usr/lib/libpython3.11.so.1.0)", "([kernel.kallsyms])",
+                                     "(/x/zenoh/zenoh.abi3.so)", "(/lib/libc.so.6)", "(/x/_cmsgpack.so)")] == \
+        ["python", "kernel", "zenoh", "libc", "other"]
+    # 999 samples are one CPU second: 2997 more over 1000 more ticks is 3 ms a tick, split as sampled.
+    short, long = {"python": 100, "kernel": 50}, {"python": 100 + 1998, "kernel": 50 + 999}
+    assert perf.per_tick_us(short, long, 1000) == {"kernel": 1000.0, "python": 2000.0, "total": 3000.0}
