@@ -29,7 +29,6 @@ import signal
 import statistics
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -37,7 +36,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench_io import machine, write_json  # noqa: E402  (sibling scripts)
-from bench_threads import _descendants, floor_argv, runtime_argv  # noqa: E402
+from bench_threads import _descendants, add_short_long_arguments, per_tick_us, short_and_long  # noqa: E402
 
 FREQ = 999  # samples per CPU second
 GROUPS = (("libpython", "python"), ("[kernel", "kernel"), ("zenoh", "zenoh"), ("libc.so", "libc"))
@@ -107,21 +106,10 @@ def samples_by_group(argv: list[str], robot: int, folder: Path) -> dict[str, int
     return dict(out)
 
 
-def per_tick_us(short: dict[str, int], long: dict[str, int], ticks: int) -> dict[str, float]:
-    keys = sorted(set(short) | set(long))
-    out = {k: round(1e6 / FREQ * (long.get(k, 0) - short.get(k, 0)) / ticks, 1) for k in keys}
-    out["total"] = round(sum(out.values()), 1)
-    return out
-
-
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("config", nargs="?", default=str(ROOT / "configs" / "paper-fast.toml"))
+    add_short_long_arguments(p, "perf_agent.json")
     p.add_argument("--robot", type=int, default=2)
-    p.add_argument("--short", type=int, default=500)
-    p.add_argument("--long", type=int, default=3000)
-    p.add_argument("--repeat", type=int, default=2)
-    p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "perf_agent.json"))
     a = p.parse_args()
     if shutil.which("perf") is None:
         print("bench_perf: needs Linux perf (Debian: apt-get install linux-perf)", file=sys.stderr)
@@ -131,21 +119,16 @@ def main() -> int:
     if probe.returncode != 0:
         print(f"bench_perf: perf cannot record here: {probe.stderr.strip()[-300:]}", file=sys.stderr)
         return 2
-    config = Path(a.config).resolve()
     ticks = a.long - a.short
-    result: dict = {"machine": machine(), "config": str(config), "robot": a.robot, "short": a.short,
-                    "long": a.long, "unit": "CPU us per tick of one agent process", "runtime": [], "floor": []}
-    with tempfile.TemporaryDirectory() as tmp:
-        for i in range(a.repeat):
-            for name in ("runtime", "floor"):
-                got = {}
-                for n in (a.short, a.long):
-                    argv = runtime_argv(config, Path(tmp), n) if name == "runtime" else floor_argv(config, n)
-                    got[n] = samples_by_group(argv, a.robot, Path(tmp))
-                row = {"us_per_tick": per_tick_us(got[a.short], got[a.long], ticks),
-                       "load_avg": round(os.getloadavg()[0], 2)}
-                result[name].append(row)
-                print(name, i, json.dumps(row), file=sys.stderr)
+    result: dict = {"machine": machine(), "config": str(Path(a.config).resolve()), "robot": a.robot,
+                    "short": a.short, "long": a.long, "unit": "CPU us per tick of one agent process",
+                    "runtime": [], "floor": []}
+    for i, name, got in short_and_long(a, lambda argv, folder: samples_by_group(argv, a.robot, folder)):
+        per_tick = per_tick_us(got[a.short], got[a.long], ticks, us=1e6 / FREQ)
+        per_tick["total"] = round(sum(per_tick.values()), 1)
+        row = {"us_per_tick": per_tick, "load_avg": round(os.getloadavg()[0], 2)}
+        result[name].append(row)
+        print(name, i, json.dumps(row), file=sys.stderr)
     result["median_us_per_tick"] = {
         name: {k: statistics.median(r["us_per_tick"].get(k, 0.0) for r in result[name])
                for k in result[name][0]["us_per_tick"]} for name in ("runtime", "floor")}

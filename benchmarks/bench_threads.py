@@ -133,38 +133,51 @@ def floor_argv(config: Path, ticks: int) -> list[str]:
     return [sys.executable, "-c", code]
 
 
-def per_tick_us(short: dict[str, float], long: dict[str, float], ticks: int) -> dict[str, float]:
+def per_tick_us(short: dict[str, float], long: dict[str, float], ticks: int, us: float = 1e6) -> dict[str, float]:
+    """``long - short`` per key, per tick, in us (``us``: us per unit of the readings)."""
     keys = sorted(set(short) | set(long))
-    return {k: round(1e6 * (long.get(k, 0.0) - short.get(k, 0.0)) / ticks, 1) for k in keys}
+    return {k: round(us * (long.get(k, 0.0) - short.get(k, 0.0)) / ticks, 1) for k in keys}
 
 
-def main() -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_short_long_arguments(p: argparse.ArgumentParser, out: str) -> None:
+    """The arguments of a short-against-long benchmark (this one and bench_perf.py)."""
     p.add_argument("config", nargs="?", default=str(ROOT / "configs" / "paper-fast.toml"))
     p.add_argument("--short", type=int, default=500)
     p.add_argument("--long", type=int, default=3000)
     p.add_argument("--repeat", type=int, default=2)
-    p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "threads.json"))
-    a = p.parse_args()
+    p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / out))
+
+
+def short_and_long(a: argparse.Namespace, measure):
+    """Runtime and floor, ``a.short`` and ``a.long`` ticks each, interleaved ``a.repeat`` times:
+    yields ``(round, "runtime"|"floor", {ticks: measure(argv, folder)})``."""
     config = Path(a.config).resolve()
-    ticks = a.long - a.short
-    result: dict = {"machine": machine(), "config": str(config), "short": a.short, "long": a.long,
-                    "runtime": [], "floor": []}
     with tempfile.TemporaryDirectory() as tmp:
         for i in range(a.repeat):
             for name in ("runtime", "floor"):
-                cpu = {}
+                got = {}
                 for n in (a.short, a.long):
                     argv = runtime_argv(config, Path(tmp), n) if name == "runtime" else floor_argv(config, n)
-                    cpu[n] = cpu_by_thread(argv)
-                row = {"us_per_tick": per_tick_us(cpu[a.short], cpu[a.long], ticks), "load_avg": os.getloadavg()[0]}
-                per_tick = row["us_per_tick"]
-                row["switches_per_tick"] = {k.split("/")[0]: per_tick.pop(k) for k in list(per_tick)
-                                            if k.endswith("/switches")}
-                per_tick["total"] = round(sum(per_tick.values()), 1)
-                row["switches_per_tick"]["total"] = round(sum(row["switches_per_tick"].values()), 1)
-                result[name].append(row)
-                print(name, i, json.dumps(row), file=sys.stderr)
+                    got[n] = measure(argv, Path(tmp))
+                yield i, name, got
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_short_long_arguments(p, "threads.json")
+    a = p.parse_args()
+    ticks = a.long - a.short
+    result: dict = {"machine": machine(), "config": str(Path(a.config).resolve()), "short": a.short,
+                    "long": a.long, "runtime": [], "floor": []}
+    for i, name, cpu in short_and_long(a, lambda argv, _folder: cpu_by_thread(argv)):
+        row = {"us_per_tick": per_tick_us(cpu[a.short], cpu[a.long], ticks), "load_avg": os.getloadavg()[0]}
+        per_tick = row["us_per_tick"]
+        row["switches_per_tick"] = {k.split("/")[0]: per_tick.pop(k) for k in list(per_tick)
+                                    if k.endswith("/switches")}
+        per_tick["total"] = round(sum(per_tick.values()), 1)
+        row["switches_per_tick"]["total"] = round(sum(row["switches_per_tick"].values()), 1)
+        result[name].append(row)
+        print(name, i, json.dumps(row), file=sys.stderr)
     for what in ("us_per_tick", "switches_per_tick"):
         result[f"median_{what}"] = {
             name: {k: statistics.median(r[what].get(k, 0.0) for r in result[name]) for k in result[name][0][what]}
