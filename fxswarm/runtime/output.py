@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -15,11 +16,13 @@ def prepare_run_folder(out_dir: str | Path, who: str) -> Path:
     that cannot be written ends the command at once, in one line with exit status 2, instead of
     a traceback after the run (whose results would be lost)."""
     out = Path(out_dir)
-    probe = out / f".fxswarm-probe-{os.getpid()}"
     try:
         out.mkdir(parents=True, exist_ok=True)
-        probe.write_bytes(b"")
-        probe.unlink()
+        # A probe of its own (mkstemp: O_EXCL, a random name): the processes of one run check the
+        # same folder at once, and in containers each is pid 1, so a name by pid was shared.
+        fd, probe = tempfile.mkstemp(prefix=".fxswarm-probe-", dir=out)
+        os.close(fd)
+        os.unlink(probe)
     except OSError as exc:
         print(f"{who}: cannot write the run folder {out}: {exc.strerror or exc}", file=sys.stderr)
         raise SystemExit(2) from None
