@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import time
+import warnings
 
 import pytest
 
@@ -34,9 +37,36 @@ def swarm_mode():
     elif state != "active":
         pytest.skip(f"this engine's swarm state is {state!r}: neither active nor inactive")
     yield inited
+    stuck = None
     if inited:
         sh("docker", "swarm", "leave", "--force", timeout=120, check=False)
         if "docker_gwbridge" not in networks:  # swarm init makes it and leave keeps it: not ours to keep
-            sh("docker", "network", "rm", "docker_gwbridge", check=False)
-    assert set(sh("docker", "network", "ls", "--format", "{{.Name}}").split()) == networks, "networks as found"
+            stuck = remove_gateway_bridge()
+    left = set(sh("docker", "network", "ls", "--format", "{{.Name}}").split())
+    if stuck is not None and left - networks == {"docker_gwbridge"}:
+        # Docker 20.10 can keep a phantom endpoint on this bridge after a task container was killed
+        # (moby/moby#37018: "has active endpoints", none listed); only a daemon restart clears it.
+        # Everything else must be as found; this one is said, since no client call can remove it.
+        warnings.warn(f"docker_gwbridge left behind: the engine refuses to remove it ({stuck}); "
+                      "restarting dockerd clears it", stacklevel=1)
+        left.discard("docker_gwbridge")
+    assert left == networks, "networks as found"
+
+
+def remove_gateway_bridge(timeout: float = 30.0) -> str | None:
+    """Remove the docker_gwbridge network that ``swarm init`` made; None once it is gone, else the
+    engine's last refusal. Endpoints it lists are disconnected first; a refusal for active
+    endpoints is waited on (the ingress sandbox can take a moment to go after ``swarm leave``)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        for ep in sh("docker", "network", "inspect", "docker_gwbridge", "--format",
+                     "{{range .Containers}}{{.Name}} {{end}}", check=False).split():
+            sh("docker", "network", "disconnect", "--force", "docker_gwbridge", ep, check=False)
+        r = subprocess.run(["docker", "network", "rm", "docker_gwbridge"], capture_output=True, text=True, timeout=60)
+        gone = "docker_gwbridge" not in sh("docker", "network", "ls", "--format", "{{.Name}}").split()
+        if r.returncode == 0 or gone:
+            return None
+        if time.monotonic() > deadline:
+            return r.stderr.strip()
+        time.sleep(1)
     assert sh("docker", "info", "--format", "{{.Swarm.LocalNodeState}}").strip() == state, "swarm mode as found"
