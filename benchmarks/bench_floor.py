@@ -306,6 +306,7 @@ def run_floor(config: str | Path, ticks: int, period: float = 0.0, topology: str
     """One floor run of scenario ``config``: ``ticks`` lock-step ticks (``period`` 0) or ticks
     paced ``period`` s apart. Returns the world's figures and the crossings per tick."""
     from fxswarm.core.scenario import load as load_scenario
+    from bench_io import start_router  # a sibling script (here, not at the top: role processes import zenoh only)
     from fxswarm.launch.launcher import ZENOH_RUNTIME, auto_topology, free_port, topology_options
 
     sc = load_scenario(str(config))
@@ -324,8 +325,7 @@ def run_floor(config: str | Path, ticks: int, period: float = 0.0, topology: str
     if period > 0:
         common.append("--express")  # the runtime keeps express in real time, batches in lock-step
     me = [sys.executable, str(Path(__file__).resolve())]
-    router = subprocess.Popen([sys.executable, "-m", "fxswarm.cli", "router", "--listen", endpoint,
-                               "--swarm", swarm], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+    router = start_router(endpoint, "--swarm", swarm, env=env)
     procs: list[subprocess.Popen] = []
     try:
         argv = [me + ["--role", "leader", *common]]

@@ -8,6 +8,8 @@ from __future__ import annotations
 import json
 import os
 import platform
+import subprocess
+import sys
 from pathlib import Path
 
 
@@ -22,3 +24,13 @@ def write_json(path: str | Path, data: dict) -> None:
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(data, indent=2) + "\n")
+
+
+def start_router(endpoint: str, *extra: str, env: dict | None = None) -> subprocess.Popen:
+    """A Zenoh router (``fxswarm router``) listening on ``endpoint``, output discarded. It leaves
+    when this process does (FXSWARM_PARENT_PID), so a benchmark killed mid-run leaves no router."""
+    from fxswarm.runtime.process import PARENT_ENV
+
+    return subprocess.Popen([sys.executable, "-m", "fxswarm.cli", "router", "--listen", endpoint, *extra],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            env={**(env if env is not None else os.environ), PARENT_ENV: str(os.getpid())})

@@ -50,7 +50,7 @@ from fxswarm.runtime.zenoh_bus import TOPOLOGIES  # noqa: E402
 from fxswarm.testing import scenario_with  # noqa: E402
 
 from bench_floor import floor_lockstep, floor_realtime  # noqa: E402  (a sibling script)
-from bench_io import machine, write_json  # noqa: E402  (a sibling script)
+from bench_io import machine, start_router, write_json  # noqa: E402  (a sibling script)
 
 PONG = r"""
 import sys, threading, zenoh
@@ -79,8 +79,7 @@ def pingpong(n: int = 2000, topology: str = "routed") -> dict:
     import zenoh
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    router = subprocess.Popen([sys.executable, "-m", "fxswarm.cli", "router", "--listen", endpoint],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    router = start_router(endpoint)
     pong = subprocess.Popen([sys.executable, "-c", PONG, endpoint, topology], stdin=subprocess.PIPE, cwd=ROOT)
     mesh = topology == "mesh"
     s = zenoh.open(topology_options(topology, endpoint).config())

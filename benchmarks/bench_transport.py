@@ -49,7 +49,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench_io import machine, write_json  # noqa: E402  (sibling scripts)
+from bench_io import machine, start_router, write_json  # noqa: E402  (sibling scripts)
 from bench_runtime import cpu_s  # noqa: E402  (CPU time from /proc)
 
 MECHANISMS = ("queue", "queue-direct", "inline", "inline-direct", "fifo", "bus", "bus-stay")
@@ -234,8 +234,7 @@ def measure(mech: str, n: int, warmup: int, runtime: str | None) -> dict:
     env = dict(os.environ)
     if runtime:
         env["ZENOH_RUNTIME"] = runtime
-    router = subprocess.Popen([sys.executable, "-m", "fxswarm.cli", "router", "--listen", endpoint],
-                              stdout=subprocess.DEVNULL, cwd=ROOT)
+    router = start_router(endpoint)
     me = [sys.executable, __file__, "--worker"]
     args = [mech, endpoint, str(n), str(warmup)]
     pong = subprocess.Popen(me + ["pong"] + args, stdin=subprocess.PIPE, cwd=ROOT, env=env, text=True)
