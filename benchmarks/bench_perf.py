@@ -36,7 +36,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench_io import machine, write_json  # noqa: E402  (sibling scripts)
-from bench_threads import _descendants, add_short_long_arguments, per_tick_us, short_and_long  # noqa: E402
+from bench_threads import (_descendants, _role, add_short_long_arguments, per_tick_us,  # noqa: E402
+                          short_and_long)
 
 FREQ = 999  # samples per CPU second
 GROUPS = (("libpython", "python"), ("[kernel", "kernel"), ("zenoh", "zenoh"), ("libc.so", "libc"))
@@ -56,8 +57,7 @@ def _agent_pid(root: int, robot: int) -> int | None:
             cmd = Path(f"/proc/{pid}/cmdline").read_text().split("\0")
         except OSError:
             continue
-        is_agent = ("agent" in cmd and "fxswarm.cli" in cmd) or ("--role" in cmd and cmd[cmd.index("--role") + 1] == "agent")
-        if is_agent and "--id" in cmd and cmd[cmd.index("--id") + 1] == str(robot):
+        if _role(" ".join(cmd)) == "agent" and "--id" in cmd and cmd[cmd.index("--id") + 1] == str(robot):
             return pid
     return None
 

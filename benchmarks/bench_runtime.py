@@ -122,25 +122,25 @@ def stats_ms(samples) -> dict:
             "max_ms": float(a.max()), "mean_ms": float(a.mean())}
 
 
-def rss_mb(pid: int) -> float | None:
+def _proc_mb(path: str, field: str) -> float | None:
+    """The kB figure on line ``field`` of a /proc file, in MB (None if the process is gone)."""
     try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
+        for line in Path(path).read_text().splitlines():
+            if line.startswith(field):
                 return int(line.split()[1]) / 1024
     except OSError:
         return None
     return None
 
 
+def rss_mb(pid: int) -> float | None:
+    return _proc_mb(f"/proc/{pid}/status", "VmRSS:")
+
+
 def pss_mb(pid: int) -> float | None:
     """Proportional set size, MB: resident memory with each shared page (the Zenoh and numpy
     libraries every agent maps) divided among the processes sharing it: what one more agent costs."""
-    try:
-        for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
-            if line.startswith("Pss:"):
-                return int(line.split()[1]) / 1024
-    except OSError:
-        return None
+    return _proc_mb(f"/proc/{pid}/smaps_rollup", "Pss:")
     return None
 
 
@@ -154,11 +154,11 @@ def cpu_s(pid: int) -> float | None:
 
 
 def run_swarm(config: Path, out: Path, clock: str, speed: float = 1.0, rss_at: float | None = None,
-              topology: str | None = None, start_timeout: float = 120) -> dict:
+              topology: str | None = None, start_timeout: float = 120, secure: str | None = None) -> dict:
     """Run a scenario as processes (no logger); return the world's counters, agents' RSS and
     each process's CPU time while the world ran (sampled every 0.2 s: the last sample before
     the world ends, less the one when it started)."""
-    swarm = Swarm(str(config), out, clock=clock, speed=speed, logger=False, topology=topology)
+    swarm = Swarm(str(config), out, clock=clock, speed=speed, logger=False, topology=topology, secure=secure)
     rss: dict[str, float] = {}  # the largest resident size seen per agent, sampled about once a second
     pss: dict[str, float] = {}  # the same, proportional (shared pages divided among their sharers)
     cpu_start: dict[str, float] = {}

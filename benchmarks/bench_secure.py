@@ -31,10 +31,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench_io import machine, write_json  # noqa: E402  (a sibling script)
-from bench_runtime import load  # noqa: E402
+from bench_runtime import load, run_swarm  # noqa: E402
 
 from fxswarm.core.scenario import load as load_scenario  # noqa: E402
-from fxswarm.launch.launcher import Swarm  # noqa: E402
 from fxswarm.launch.sim import Simulation  # noqa: E402
 from fxswarm.security.keys import write_keys  # noqa: E402
 from fxswarm.testing import scenario_with  # noqa: E402
@@ -45,22 +44,10 @@ VARIANTS = {"plain": {"topology": None}, "secure": {"topology": None, "secure": 
 
 
 def run(config: Path, out: Path, clock: str, keys: Path, variant: str) -> dict:
-    """One run of ``config`` as processes (no logger) in this variant; its merged summary."""
+    """One run of ``config`` as processes (no logger) in this variant (bench_runtime's run_swarm)."""
     opts = VARIANTS[variant]
-    swarm = Swarm(str(config), out, clock=clock, logger=False, topology=opts.get("topology"),
-                  secure=str(keys) if opts.get("secure") else None)
-    try:
-        swarm.start(timeout=120)
-        world = swarm.children["world"]
-        while world.running():
-            swarm.poll(0.1)
-        swarm.stop(grace=3.0)
-        summary = swarm.merge_summary()
-    finally:
-        swarm.stop()
-    if summary is None or not summary.get("complete"):
-        raise RuntimeError(f"run in {out} did not complete; see {out}/logs")
-    return {"world": summary["processes"]["world-0"], "summary": summary, "topology": swarm.topology}
+    return run_swarm(config, out, clock, topology=opts.get("topology"),
+                     secure=str(keys) if opts.get("secure") else None)
 
 
 def floor_ticks_per_s(config: Path) -> float:

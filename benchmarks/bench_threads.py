@@ -74,14 +74,15 @@ def _switches(pid: int, tid: str) -> int:
     """Context switches of one thread so far, voluntary (it blocked) and not (it was preempted)."""
     total = 0
     for line in Path(f"/proc/{pid}/task/{tid}/status").read_text().splitlines():
-        if line.endswith("ctxt_switches", 0, line.find(":")):
-            total += int(line.split()[1])
+        name, _, value = line.partition(":")
+        if name.endswith("ctxt_switches"):
+            total += int(value)
     return total
 
 
-def cpu_by_thread(argv: list[str], env: dict | None = None) -> dict[str, float]:
+def cpu_by_thread(argv: list[str], env: dict | None = None) -> tuple[dict[str, float], dict[str, int]]:
     """Run ``argv``; return CPU s per ``role/kind`` summed over the run's processes' threads, and
-    their context switches per ``role/switches``."""
+    their context switches per role."""
     last: dict[tuple[int, int], tuple[str, str, float, int]] = {}
     roles: dict[int, str | None] = {}
     proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env, text=True)
@@ -112,11 +113,12 @@ def cpu_by_thread(argv: list[str], env: dict | None = None) -> dict[str, float]:
     err = proc.stderr.read()
     if proc.returncode != 0:
         raise RuntimeError(f"{argv[:4]} failed ({proc.returncode}): {err[-1500:]}")
-    out: dict[str, float] = collections.defaultdict(float)
+    cpu_s: dict[str, float] = collections.defaultdict(float)
+    switched: dict[str, int] = collections.defaultdict(int)
     for role, kind, cpu, switches in last.values():
-        out[f"{role}/{kind}"] += cpu
-        out[f"{role}/switches"] += switches / 1e6  # per_tick_us scales by 1e6: this comes out per tick
-    return dict(out)
+        cpu_s[f"{role}/{kind}"] += cpu
+        switched[role] += switches
+    return dict(cpu_s), dict(switched)
 
 
 def runtime_argv(config: Path, folder: Path, ticks: int) -> list[str]:
@@ -134,7 +136,7 @@ def floor_argv(config: Path, ticks: int) -> list[str]:
 
 
 def per_tick_us(short: dict[str, float], long: dict[str, float], ticks: int, us: float = 1e6) -> dict[str, float]:
-    """``long - short`` per key, per tick, in us (``us``: us per unit of the readings)."""
+    """``long - short`` per key, per tick, times ``us`` (us per unit of the readings; 1 for counts)."""
     keys = sorted(set(short) | set(long))
     return {k: round(us * (long.get(k, 0.0) - short.get(k, 0.0)) / ticks, 1) for k in keys}
 
@@ -169,13 +171,12 @@ def main() -> int:
     ticks = a.long - a.short
     result: dict = {"machine": machine(), "config": str(Path(a.config).resolve()), "short": a.short,
                     "long": a.long, "runtime": [], "floor": []}
-    for i, name, cpu in short_and_long(a, lambda argv, _folder: cpu_by_thread(argv)):
-        row = {"us_per_tick": per_tick_us(cpu[a.short], cpu[a.long], ticks), "load_avg": os.getloadavg()[0]}
-        per_tick = row["us_per_tick"]
-        row["switches_per_tick"] = {k.split("/")[0]: per_tick.pop(k) for k in list(per_tick)
-                                    if k.endswith("/switches")}
-        per_tick["total"] = round(sum(per_tick.values()), 1)
-        row["switches_per_tick"]["total"] = round(sum(row["switches_per_tick"].values()), 1)
+    for i, name, got in short_and_long(a, lambda argv, _folder: cpu_by_thread(argv)):
+        (cpu_short, sw_short), (cpu_long, sw_long) = got[a.short], got[a.long]
+        row = {"us_per_tick": per_tick_us(cpu_short, cpu_long, ticks),
+               "switches_per_tick": per_tick_us(sw_short, sw_long, ticks, us=1), "load_avg": os.getloadavg()[0]}
+        for what in ("us_per_tick", "switches_per_tick"):
+            row[what]["total"] = round(sum(row[what].values()), 1)
         result[name].append(row)
         print(name, i, json.dumps(row), file=sys.stderr)
     for what in ("us_per_tick", "switches_per_tick"):
