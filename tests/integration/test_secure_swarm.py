@@ -166,9 +166,10 @@ def listening_ports(pid: int) -> set[int]:
 @pytest.mark.parametrize("topology", [None, "routed"])
 def test_secure_lockstep_equals_the_in_memory_sim_bit_for_bit(launch_swarm, keys, topology):
     """Secure, as a plain run: a mesh for these 6 robots unless told routed."""
-    # 30 s of flight: the checks below need every process alive (lock-step runs ~4x faster than real
-    # time, so 6 s of flight could end mid-check and leave zombies with no sockets to read).
-    swarm = launch_swarm(SCENARIO, secure=keys, duration=30.0, topology=topology)
+    # 90 s of flight: the checks below need every process alive, and lock-step flies about 4x faster
+    # than real time while the probes and health checks (each a new Python process) take seconds;
+    # 30 s once ended before the last health check on a clean clone.
+    swarm = launch_swarm(SCENARIO, secure=keys, duration=90.0, topology=topology)
     assert swarm.swarm.topology == (topology or "mesh")
     # Nothing listens in plaintext: routed, the router alone listens, on its TLS port; in a mesh each
     # peer listens too, on TLS, and no process was told tcp/.
@@ -196,6 +197,7 @@ def test_secure_lockstep_equals_the_in_memory_sim_bit_for_bit(launch_swarm, keys
     # as observer. (Not in the --audit run above: there the router's trace log can slow its answers.)
     assert health(swarm, keys, "agent", "3").returncode == 0
     assert health(swarm, keys, "router", "0", "--as", "observer").returncode == 0
-    summary = swarm.wait_done(timeout=180)
+    assert swarm.swarm.children["world"].running(), "the run ended before the checks were done"
+    summary = swarm.wait_done(timeout=300)
     assert summary["complete"]
     swarm.assert_matches_sim()
