@@ -22,7 +22,8 @@ import argparse
 import sys
 
 from fxswarm.agents.node import AgentNode
-from fxswarm.core.messages import Message
+from fxswarm.core import bus as topics
+from fxswarm.core.messages import Message, decode_carried
 from fxswarm.core.pacing import Pacer
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.plan import FaultPlan
@@ -44,6 +45,7 @@ class AgentProcess(RoleProcess):
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.last_tick: dict[tuple[str, int], int] = {}  # (role, sender) -> newest tick arrived
+        self.neighbour_commands = {topics.command_topic(j) for j in self.sc.neighbours(self.ident)}
 
     def deliver(self, topic: str, msg: Message) -> None:
         key = (msg.role, msg.sender)
@@ -52,9 +54,11 @@ class AgentProcess(RoleProcess):
         super().deliver(topic, msg)
 
     def drained(self) -> bool:
-        """Lock-step: each neighbour's (and, pinned, the leader's) last-tick message has arrived,
-        or that process is gone. Each sends in order on one key, so nothing of it is still on its
-        way, lost or delayed by a fault filter or not: all of it has been counted."""
+        """Lock-step: each neighbour's estimate for the last tick (and, pinned, the leader's
+        last state) has arrived, or that process is gone. Each sends in order on one key, so
+        nothing the robot reads from it is still on its way, lost or delayed by a fault filter
+        or not: all of it has been counted. (A neighbour's last command carries no estimate:
+        the robot reads nothing from it, and may leave before it lands.)"""
         last = self.sc.ticks - 1
         senders = [("agent", j) for j in self.sc.neighbours(self.ident)]
         if self.sc.is_pinned(self.ident):
@@ -63,6 +67,12 @@ class AgentProcess(RoleProcess):
 
     def is_late(self, msg: Message) -> bool:
         return self.core.is_late(msg)
+
+    def reader_for(self, pattern: str):
+        """A neighbour's command key: only the estimate it carries, which is all the robot uses."""
+        if pattern in self.neighbour_commands:
+            return decode_carried
+        return super().reader_for(pattern)
 
     def act_past_the_gone(self) -> None:
         """Lock-step: act now if all the robot still waits for are processes that are gone."""

@@ -27,7 +27,7 @@ import time
 from pathlib import Path
 
 from fxswarm.core import bus as topics
-from fxswarm.core.messages import Message
+from fxswarm.core.messages import Message, decode
 from fxswarm.core.pacing import Deadline, Pacer, SimClock, WallClock
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.apply import process_counters, wrap_for_process
@@ -232,8 +232,12 @@ class RoleProcess:
         self.node = node
         self.core = unwrap(node)
         for pattern in node.subscriptions():
-            self.bus.subscribe(pattern, self.deliver)
+            self.bus.subscribe(pattern, self.deliver, reader=self.reader_for(pattern))
         self.bus.declare_alive(self.role, self.ident)
+
+    def reader_for(self, pattern: str):
+        """How this process reads the payloads on ``pattern`` (role-specific; default: all of it)."""
+        return decode
 
     def deliver(self, topic: str, msg: Message) -> None:
         """The one way in: count staleness, hand ``msg`` to the node, publish what it returns."""

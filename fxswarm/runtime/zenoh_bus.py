@@ -306,7 +306,7 @@ def _sender_rule(topic: str) -> tuple[type | tuple[type, ...], str, int | None, 
 
 _WAKE = object()  # queued by wake(): lets a blocked poll() return at once (e.g. on a signal)
 _ALIVE = object()  # tags a queued liveliness change
-_RAW = object()  # tags a payload handed over undecoded
+_RAW = object()  # tags a payload handed over undecoded (any other tag: the subscription's reader)
 
 
 class ZenohBus:
@@ -370,14 +370,18 @@ class ZenohBus:
         pub.put(payload)
         self.counters.sent += 1
 
-    def subscribe(self, pattern: str, handler: Handler, raw: bool = False) -> None:
+    def subscribe(self, pattern: str, handler: Handler, raw: bool = False,
+                  reader: Callable[[bytes], Message] = decode) -> None:
         """Hand every valid message on ``pattern`` to ``handler(topic, msg)`` from :meth:`poll`.
 
+        ``reader``: how a payload becomes a message (:func:`~fxswarm.core.messages.decode`; a
+        neighbour reads only the estimate a command carries,
+        :func:`~fxswarm.core.messages.decode_carried`); it raises ``WireError`` on what it refuses.
         ``raw=True``: hand over the undecoded payload instead (``handler(topic, bytes)``),
         for a reader that only wants the latest of many (e.g. a progress line).
         """
         cut = len(self.root) + 1
-        tag = _RAW if raw else handler
+        tag = _RAW if raw else reader
         arrive = self._arrive
 
         if "*" in pattern or "$" in pattern:
@@ -482,7 +486,7 @@ class ZenohBus:
             handler(topic, payload)
             return 0
         try:
-            msg = decode(payload)
+            msg = tag(payload)
             if self.validate:
                 check_sender(topic, msg)
         except WireError as exc:
