@@ -53,18 +53,25 @@ def main() -> int:
     p.add_argument("--cold-mb", type=int, default=32,
                    help="buffer written between messages in the cold passes, MB (default 32: this "
                         "machine's last-level cache)")
+    p.add_argument("--cold-ticks", type=int, default=1000,
+                   help="ticks timed in the cold passes (default 1000: each eviction takes ms)")
+    p.add_argument("--together", default="", metavar="K,K,...",
+                   help="also time robots 1..K with their caches evicted once per round of their "
+                        "messages, not once per message: what K robots would cost in one process "
+                        "(a design not built; docs/benchmarks.md says why it is measured)")
     p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "hotloop.json"))
     a = p.parse_args()
     sc = load(a.config)
     sim = Simulation(sc)
-    wanted = {"agent": set(AgentNode(sc, a.robot).subscriptions()), "world": set(WorldNode(sc).subscriptions())}
-    heard: dict[str, list[tuple[str, bytes]]] = {"agent": [], "world": []}
+    robots = [r.id for r in sc.robots]
+    wanted = {"world": set(WorldNode(sc).subscriptions())} | {r: set(AgentNode(sc, r).subscriptions()) for r in robots}
+    heard: dict = {role: [] for role in wanted}  # "world" or a robot id -> [(topic, payload)]
     publish_all = sim.bus.publish_all
 
     def record(out):
         for topic, msg in out:
-            for role, topics in wanted.items():
-                if topic in topics:
+            for role, keys in wanted.items():
+                if topic in keys:
                     heard[role].append((topic, encode(msg)))
         publish_all(out)
 
@@ -72,30 +79,54 @@ def main() -> int:
     sim.run()
 
     # As the processes read: a robot takes only the estimate off its neighbours' commands.
-    readers = {"agent": {topics.command_topic(j): decode_carried for j in sc.neighbours(a.robot)}, "world": {}}
+    readers = {"world": {}} | {r: {topics.command_topic(j): decode_carried for j in sc.neighbours(r)} for r in robots}
+    heard["agent"], readers["agent"] = heard[a.robot], readers[a.robot]
     evict = np.zeros(a.cold_mb * 2**20 // 8)  # float64: 8 per 64-byte line
+    clock = time.perf_counter
+    per_tick = {role: round(len(h) / sc.ticks) for role, h in heard.items()}  # messages (the first ticks')
+
+    def take(role, node, topic: str, payload: bytes) -> float:
+        """What ``role``'s process does with one message, in s."""
+        start = clock()
+        msg = readers[role].get(topic, decode)(payload)
+        check_sender(topic, msg)
+        for _, m in node.handle(topic, msg):
+            encode(m)
+        return clock() - start
 
     def one_pass(role: str, cold: bool) -> float:
         node = AgentNode(sc, a.robot) if role == "agent" else WorldNode(sc)
-        clock = time.perf_counter
         start = clock()
         if role == "world":
             for _, m in node.start():
                 encode(m)
         spent = clock() - start
-        for topic, payload in heard[role]:
+        ticks = min(a.cold_ticks, sc.ticks) if cold else sc.ticks
+        for topic, payload in heard[role][:per_tick[role] * ticks]:
             if cold:
                 evict[::8] += 1.0  # one write per cache line
-            start = clock()
-            msg = readers[role].get(topic, decode)(payload)
-            check_sender(topic, msg)
-            for _, m in node.handle(topic, msg):
-                encode(m)
-            spent += clock() - start
-        return 1e6 * spent / sc.ticks
+            spent += take(role, node, topic, payload)
+        return 1e6 * spent / ticks
+
+    def together_pass(k: int, evict_each: bool) -> float:
+        """Robots 1..k, their i-th messages one after the other: us per robot and tick."""
+        group = robots[:k]
+        nodes = {r: AgentNode(sc, r) for r in group}
+        spent = 0.0
+        ticks = min(a.cold_ticks, sc.ticks)
+        for i in range(max(per_tick[r] for r in group) * ticks):
+            if not evict_each:
+                evict[::8] += 1.0
+            for r in group:
+                if i < per_tick[r] * ticks:
+                    if evict_each:
+                        evict[::8] += 1.0
+                    spent += take(r, nodes[r], *heard[r][i])
+        return 1e6 * spent / ticks / k
 
     result = {"machine": machine(), "config": a.config, "robot": a.robot, "ticks": sc.ticks,
-              "messages_per_tick": {r: round(len(h) / sc.ticks, 3) for r, h in heard.items()}, "cold_mb": a.cold_mb}
+              "messages_per_tick": {r: round(len(heard[r]) / sc.ticks, 3) for r in ("agent", "world")},
+              "cold_mb": a.cold_mb}
     for role in ("agent", "world"):
         hot, cold = [], []
         for _ in range(a.repeat):  # alternately, so both see the same machine
@@ -104,6 +135,15 @@ def main() -> int:
         for name, runs in ((f"{role}_us_per_tick", hot), (f"{role}_cold_us_per_tick", cold)):
             result[name] = {"median": round(statistics.median(runs), 1), "runs": [round(x, 1) for x in runs]}
         result[f"{role}_cold_over_hot"] = round(statistics.median(cold) / statistics.median(hot), 2)
+    for k in [int(x) for x in a.together.split(",") if x]:
+        apart, together = [], []
+        for _ in range(a.repeat):
+            apart.append(together_pass(k, evict_each=True))
+            together.append(together_pass(k, evict_each=False))
+        result.setdefault("together", []).append({
+            "robots": k, "apart_cold_us_per_robot_tick": round(statistics.median(apart), 1),
+            "together_cold_us_per_robot_tick": round(statistics.median(together), 1),
+            "together_over_apart": round(statistics.median(together) / statistics.median(apart), 2)})
     write_json(a.out, result)
     print(json.dumps(result, indent=2))
     return 0

@@ -378,8 +378,8 @@ def decode_carried(payload: bytes) -> Message:
     the world, which reads them. Anything else (a command carrying no estimate, a robot's first
     ``Estimate`` sent alone, or a payload whose read fields are not valid) goes through
     :func:`decode`, so it is returned or refused exactly as there (:class:`WireError`).
-
-    Under a real run's cold caches this is about 11 of a full command's 29 us (bench_hotloop).
+    One array is built, not three or four: in a real run every one is built with cold caches
+    (docs/benchmarks.md "Where the CPU of a tick goes").
     """
     try:
         raw = _unpackb(payload, raw=False, strict_map_key=True)

@@ -54,3 +54,21 @@ def test_perf_samples_are_grouped_by_library_and_turned_into_cpu_per_tick():
     # 999 samples are one CPU second: 2997 more over 1000 more ticks is 3 ms a tick, split as sampled.
     short, long = {"python": 100, "kernel": 50}, {"python": 100 + 1998, "kernel": 50 + 999}
     assert perf.per_tick_us(short, long, 1000, us=1e6 / perf.FREQ) == {"kernel": 1000.0, "python": 2000.0}
+
+
+def test_the_hot_loop_times_the_processes_work_hot_cold_and_robots_together(tmp_path):
+    """bench_hotloop runs the real read/node/encode path (a rename there breaks it here) and its
+    cold passes evict: a cold tick costs more than a hot one, even on a loaded machine."""
+    import json
+    import subprocess
+
+    out = tmp_path / "hot.json"
+    subprocess.run([sys.executable, str(REPO / "benchmarks" / "bench_hotloop.py"), "--repeat", "1",
+                    "--cold-ticks", "30", "--cold-mb", "16", "--together", "1,2", "--out", str(out)],
+                   check=True, capture_output=True, timeout=300)
+    r = json.loads(out.read_text())
+    assert r["messages_per_tick"] == {"agent": 4.0, "world": 6.002}  # robot 1 of paper-fast is pinned
+    for role in ("agent", "world"):
+        assert 0 < r[f"{role}_us_per_tick"]["median"] < r[f"{role}_cold_us_per_tick"]["median"]
+    assert [g["robots"] for g in r["together"]] == [1, 2]
+    assert all(g["apart_cold_us_per_robot_tick"] > 0 and g["together_cold_us_per_robot_tick"] > 0 for g in r["together"])
