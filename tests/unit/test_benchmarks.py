@@ -72,3 +72,13 @@ def test_the_hot_loop_times_the_processes_work_hot_cold_and_robots_together(tmp_
         assert 0 < r[f"{role}_us_per_tick"]["median"] < r[f"{role}_cold_us_per_tick"]["median"]
     assert [g["robots"] for g in r["together"]] == [1, 2]
     assert all(g["apart_cold_us_per_robot_tick"] > 0 and g["together_cold_us_per_robot_tick"] > 0 for g in r["together"])
+
+
+def test_a_real_time_size_keeps_up_only_on_time_unheld_and_within_the_latency_bound():
+    import bench_scale as s
+
+    assert s.missed(0.0, 0.0, 17.3) == []
+    assert s.missed(0.01, 0.0, 5.0) == ["late ticks"]  # 1 % is not "under 1 %"
+    assert s.missed(0.0, 0.4, 5.0) == ["held ticks"]
+    assert s.missed(0.0, 0.0, 20.0) == ["p99 latency"]
+    assert s.missed(0.0, 0.0, None) == ["p99 latency"]  # no latency measured: not shown to keep up
