@@ -1,7 +1,7 @@
 """The floor: fxswarm's message pattern over Zenoh from Python, with nothing else in it.
 
     python benchmarks/bench_floor.py [CONFIG] [--ticks 2000] [--realtime-s S] [--repeat N]
-        [--topology auto|mesh|routed] [--out benchmarks/results/floor.json]
+        [--topology auto|mesh|routed] [--robots-per-process K[,K...]] [--out benchmarks/results/floor.json]
 
 A world process, a leader process and one process per robot exchange the
 runtime's messages as the runtime sent them before its crossings were cut
@@ -29,6 +29,12 @@ crossings per tick (every put and every delivery, all processes).
 
 Other benchmarks import :func:`floor_lockstep` / :func:`floor_realtime` to
 measure the floor in the same run as the runtime (interleaved).
+
+``--robots-per-process K``: each agent process hosts K robots (consecutive
+ids), each still on its own keys, subscriptions and liveliness token, so the
+wire carries what it carries with one process per robot. fxswarm runs one
+process per robot; this measures what hosting would change (several K are
+run in turn, every repeat).
 """
 
 from __future__ import annotations
@@ -59,10 +65,10 @@ def _role_main(argv: list[str]) -> int:
     p.add_argument("--role", choices=("world", "leader", "agent"), required=True)
     p.add_argument("--swarm", required=True)
     p.add_argument("--zenoh", required=True, help="json5 config inserts: [[key, value], ...]")
-    p.add_argument("--id", type=int, default=0)
+    p.add_argument("--id", default="0", help="robot id; an agent process may host several: 1,2,3")
     p.add_argument("--robots", type=int, required=True)
     p.add_argument("--ticks", type=int, required=True)
-    p.add_argument("--neighbours", default="")
+    p.add_argument("--neighbours", default="", help="per hosted robot, its neighbours: 2,6;1,3;...")
     p.add_argument("--pinned", default="", help="comma-separated ids of the robots that hear the leader")
     p.add_argument("--sizes", required=True, help="json: payload bytes per kind (cmd per robot id)")
     p.add_argument("--period", type=float, default=0.0, help="world: real time, s between ticks (0: lock-step)")
@@ -94,8 +100,8 @@ def _role_main(argv: list[str]) -> int:
 
     subs = []
 
-    def subscribe(key: str, kind: str, sender: int) -> None:
-        def on_sample(sample, item=(kind, sender)) -> None:
+    def subscribe(key: str, kind: str, sender: int, robot: int = 0) -> None:
+        def on_sample(sample, item=(kind, sender, robot)) -> None:
             inbox.put((item, sample.payload.to_bytes()))
 
         handler = zenoh.handlers.Callback(on_sample, indirect=False) if a.direct else on_sample
@@ -105,7 +111,7 @@ def _role_main(argv: list[str]) -> int:
 
     def on_world(sample) -> None:  # the world's session closed: the run is over, whether or not "end" came
         if sample.kind == zenoh.SampleKind.DELETE:
-            inbox.put((("end", 0), b""))
+            inbox.put((("end", 0, 0), b""))
 
     if a.role != "world":
         subs.append(session.liveliness().declare_subscriber(f"{root}/floor/world", on_world))
@@ -153,9 +159,9 @@ def _role_main(argv: list[str]) -> int:
         if a.period == 0:  # lock-step: the next tick once every command of this one is in
             while tick < a.ticks:
                 try:
-                    (kind, sender), payload = inbox.get(timeout=1.0)
+                    (kind, sender, _), payload = inbox.get(timeout=1.0)
                 except queue.Empty:  # as the runtime's --tick-timeout: close the tick, count it
-                    (kind, sender), payload, got = ("cmd", 0), tick.to_bytes(8, "little", signed=True), a.robots - 1
+                    (kind, sender, _), payload, got = ("cmd", 0, 0), tick.to_bytes(8, "little", signed=True), a.robots - 1
                     missed += 1
                     counts["received"] -= 1
                 counts["received"] += 1
@@ -173,7 +179,7 @@ def _role_main(argv: list[str]) -> int:
             while tick < a.ticks:
                 left = due - time.monotonic()
                 try:
-                    (kind, sender), payload = inbox.get(timeout=left) if left > 0 else inbox.get_nowait()
+                    (kind, sender, _), payload = inbox.get(timeout=left) if left > 0 else inbox.get_nowait()
                 except queue.Empty:
                     now = time.monotonic()
                     if now > due + a.period:
@@ -199,7 +205,7 @@ def _role_main(argv: list[str]) -> int:
         sent = -1
         tokens = [session.liveliness().declare_token(f"{root}/alive/leader/0")]
         while True:
-            (kind, _), payload = inbox.get()
+            (kind, _, _), payload = inbox.get()
             if kind == "end":
                 break
             if not cpu0:
@@ -212,48 +218,52 @@ def _role_main(argv: list[str]) -> int:
             for j in range(max(sent + 1, k), min(k + 1, a.ticks - 1) + 1):
                 lead(j)
                 sent = j
-    else:
-        me = a.id
-        nbrs = [int(x) for x in a.neighbours.split(",") if x]
-        subscribe(f"world/sense/{me}", "sense", me)
-        for j in nbrs:
-            subscribe(f"agent/{j}/estimate", "estimate", j)
-        if me in pinned:
-            subscribe("leader/state", "leader", 0)
-        cmd = publisher(f"agent/{me}/cmd", sizes["cmd"][str(me)])
-        est = publisher(f"agent/{me}/estimate", sizes["estimate"])
-        tokens = [session.liveliness().declare_token(f"{root}/alive/agent/{me}")]
-        held = {j: -1 for j in nbrs}
-        leader = -1 if me in pinned else 1 << 62
-        sense = acted = estimated = -1
+    else:  # one robot, or several hosted by this process (each its own keys, state and token)
+        robots = [int(x) for x in a.id.split(",")]
+        per_robot = a.neighbours.split(";") if ";" in a.neighbours or len(robots) > 1 else [a.neighbours]
+        state = {}
+        for me, nb in zip(robots, per_robot):
+            nbrs = [int(x) for x in nb.split(",") if x]
+            subscribe(f"world/sense/{me}", "sense", me, me)
+            for j in nbrs:
+                subscribe(f"agent/{j}/estimate", "estimate", j, me)
+            if me in pinned:
+                subscribe("leader/state", "leader", 0, me)
+            state[me] = {"cmd": publisher(f"agent/{me}/cmd", sizes["cmd"][str(me)]),
+                         "est": publisher(f"agent/{me}/estimate", sizes["estimate"]),
+                         "held": {j: -1 for j in nbrs}, "leader": -1 if me in pinned else 1 << 62,
+                         "sense": -1, "acted": -1, "estimated": -1}
+        tokens = [session.liveliness().declare_token(f"{root}/alive/agent/{me}") for me in robots]
         while True:
-            (kind, sender), payload = inbox.get()
+            (kind, sender, me), payload = inbox.get()
             if kind == "end":
                 break
             if not cpu0:
                 cpu0.append(time.process_time())
             counts["received"] += 1
             k = int.from_bytes(payload[:8], "little", signed=True)
+            r = state[me]
             if kind == "sense":
-                sense = k
+                r["sense"] = k
                 if a.period > 0:  # real time: act at once on what is held
-                    cmd(k)
-                    est(k)
+                    r["cmd"](k)
+                    r["est"](k)
                     continue
-                if estimated < k:
-                    est(k)
-                    estimated = k
+                if r["estimated"] < k:
+                    r["est"](k)
+                    r["estimated"] = k
             elif kind == "estimate":
-                held[sender] = max(held[sender], k)
+                r["held"][sender] = max(r["held"][sender], k)
             else:
-                leader = max(leader, k)
-            if (a.period == 0 and sense > acted and leader >= sense
-                    and all(h >= sense for h in held.values())):
-                cmd(sense)
-                acted = sense
+                r["leader"] = max(r["leader"], k)
+            sense = r["sense"]
+            if (a.period == 0 and sense > r["acted"] and r["leader"] >= sense
+                    and all(h >= sense for h in r["held"].values())):
+                r["cmd"](sense)
+                r["acted"] = sense
                 if sense + 1 < a.ticks:
-                    est(sense + 1)
-                    estimated = sense + 1
+                    r["est"](sense + 1)
+                    r["estimated"] = sense + 1
     out.update(counts)
     out["cpu_s"] = time.process_time() - cpu0[0] if cpu0 else 0.0
     print(json.dumps(out), flush=True)
@@ -302,9 +312,11 @@ def _zenoh_inserts(options) -> list[list[str]]:
 
 
 def run_floor(config: str | Path, ticks: int, period: float = 0.0, topology: str = "auto",
-              direct: bool = False) -> dict:
+              direct: bool = False, robots_per_process: int = 1) -> dict:
     """One floor run of scenario ``config``: ``ticks`` lock-step ticks (``period`` 0) or ticks
-    paced ``period`` s apart. Returns the world's figures and the crossings per tick."""
+    paced ``period`` s apart. Returns the world's figures and the crossings per tick.
+    ``robots_per_process`` > 1: agent processes host that many robots each (consecutive ids,
+    each robot still on its own keys), a design fxswarm does not have, measured for comparison."""
     from fxswarm.core.scenario import load as load_scenario
     from bench_io import start_router  # a sibling script (here, not at the top: role processes import zenoh only)
     from fxswarm.launch.launcher import ZENOH_RUNTIME, auto_topology, free_port, topology_options
@@ -329,8 +341,10 @@ def run_floor(config: str | Path, ticks: int, period: float = 0.0, topology: str
     procs: list[subprocess.Popen] = []
     try:
         argv = [me + ["--role", "leader", *common]]
-        argv += [me + ["--role", "agent", "--id", str(r.id), "--neighbours",
-                       ",".join(str(j) for j in sc.neighbours(r.id)), *common] for r in sc.robots]
+        ids = [r.id for r in sc.robots]
+        for group in (ids[k:k + robots_per_process] for k in range(0, len(ids), robots_per_process)):
+            argv.append(me + ["--role", "agent", "--id", ",".join(map(str, group)), "--neighbours",
+                              ";".join(",".join(str(j) for j in sc.neighbours(i)) for i in group), *common])
         argv.append(me + ["--role", "world", *common])
         for cmd in argv:
             procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env))
@@ -350,7 +364,7 @@ def run_floor(config: str | Path, ticks: int, period: float = 0.0, topology: str
         router.wait(timeout=10)
     world = outs[-1]
     crossings = sum(o["sent"] + o["received"] for o in outs)
-    res = {"agents": sc.n, "topology": topology, "ticks": world["ticks"], "wall_s": world["wall_s"],
+    res = {"agents": sc.n, "robots_per_process": robots_per_process, "topology": topology, "ticks": world["ticks"], "wall_s": world["wall_s"],
            "ticks_per_s": world["ticks_per_s"], "crossings_per_tick": round(crossings / world["ticks"], 2),
            "missed_ticks": world["missed_ticks"], "cpu_ms_per_tick": round(1e3 * sum(o["cpu_s"] for o in outs) / world["ticks"], 3),
            "load_avg": os.getloadavg()[0]}
@@ -374,15 +388,15 @@ def _stats(ms: list[float]) -> dict:
     return {"n": len(a), "p50_ms": pct(50), "p99_ms": pct(99), "max_ms": a[-1], "mean_ms": statistics.fmean(a)}
 
 
-def floor_lockstep(config: str | Path, ticks: int, topology: str = "auto") -> dict:
-    return run_floor(config, ticks, 0.0, topology)
+def floor_lockstep(config: str | Path, ticks: int, topology: str = "auto", robots_per_process: int = 1) -> dict:
+    return run_floor(config, ticks, 0.0, topology, robots_per_process=robots_per_process)
 
 
-def floor_realtime(config: str | Path, duration: float, topology: str = "auto") -> dict:
+def floor_realtime(config: str | Path, duration: float, topology: str = "auto", robots_per_process: int = 1) -> dict:
     from fxswarm.core.scenario import load as load_scenario
 
     dt = load_scenario(str(config)).dt
-    return run_floor(config, int(round(duration / dt)), dt, topology)
+    return run_floor(config, int(round(duration / dt)), dt, topology, robots_per_process=robots_per_process)
 
 
 def main() -> int:
@@ -393,20 +407,27 @@ def main() -> int:
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("config", nargs="?", default=str(ROOT / "configs" / "paper-fast.toml"))
-    p.add_argument("--ticks", type=int, default=2000)
+    p.add_argument("--ticks", type=int, default=2000, help="lock-step ticks per run (0: no lock-step run)")
     p.add_argument("--realtime-s", type=float, default=0.0, help="also a real-time run this long, s")
     p.add_argument("--repeat", type=int, default=3)
     p.add_argument("--topology", choices=("auto", "mesh", "routed"), default="auto")
+    p.add_argument("--robots-per-process", default="1", metavar="K[,K...]",
+                   help="agent processes host K robots each (not fxswarm's design: one process per robot; "
+                        "measured to show what it would change); several: each in turn, every repeat")
     p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "floor.json"))
     a = p.parse_args()
+    hosts = [int(k) for k in a.robots_per_process.split(",")]
     result: dict = {"machine": machine(), "config": a.config, "lockstep": [], "realtime": []}
     for _ in range(a.repeat):
-        result["lockstep"].append(floor_lockstep(a.config, a.ticks, a.topology))
-        print("lockstep", json.dumps(result["lockstep"][-1]), file=sys.stderr)
-        if a.realtime_s > 0:
-            result["realtime"].append(floor_realtime(a.config, a.realtime_s, a.topology))
-            print("realtime", json.dumps(result["realtime"][-1]), file=sys.stderr)
-    result["lockstep_ticks_per_s_median"] = statistics.median(r["ticks_per_s"] for r in result["lockstep"])
+        for k in hosts:  # interleaved: each K once per repeat
+            if a.ticks > 0:
+                result["lockstep"].append(floor_lockstep(a.config, a.ticks, a.topology, k))
+                print("lockstep", json.dumps(result["lockstep"][-1]), file=sys.stderr)
+            if a.realtime_s > 0:
+                result["realtime"].append(floor_realtime(a.config, a.realtime_s, a.topology, k))
+                print("realtime", json.dumps(result["realtime"][-1]), file=sys.stderr)
+    if result["lockstep"]:
+        result["lockstep_ticks_per_s_median"] = statistics.median(r["ticks_per_s"] for r in result["lockstep"])
     write_json(a.out, result)
     print(json.dumps({k: v for k, v in result.items() if k.endswith("median")}))
     return 0
