@@ -51,6 +51,7 @@ def swarm_mode():
                       "restarting dockerd clears it", stacklevel=1)
         left.discard("docker_gwbridge")
     assert left == networks, "networks as found"
+    assert sh("docker", "info", "--format", "{{.Swarm.LocalNodeState}}").strip() == state, "swarm mode as found"
 
 
 def remove_gateway_bridge(timeout: float = 30.0) -> str | None:
@@ -69,4 +70,3 @@ def remove_gateway_bridge(timeout: float = 30.0) -> str | None:
         if time.monotonic() > deadline:
             return r.stderr.strip()
         time.sleep(1)
-    assert sh("docker", "info", "--format", "{{.Swarm.LocalNodeState}}").strip() == state, "swarm mode as found"
