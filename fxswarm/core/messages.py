@@ -266,14 +266,31 @@ def _decode_fast(raw: dict) -> Message | None:
         return None
     kind = raw.get("kind")
     spec = _FAST.get(kind) if type(kind) is str else None
+    if spec is None:
+        return None
+    cls, shapes = spec
+    values = _fast_values(raw, shapes)
+    if values is None:
+        return None
+    if "link_age" in values and len(values["link_age"]) != len(values["link_drops"]):
+        return None
+    if "est_ph" in values and _partial_estimate(values):
+        return None
+    msg = _new(cls)
+    msg.__dict__.update(values)
+    return msg
+
+
+def _fast_values(raw: dict, shapes: tuple[tuple[str, str], ...]) -> dict | None:
+    """The envelope and the fields ``shapes`` names, checked as the full path checks them (vectors
+    as arrays, counts as tuples); None if any is not the usual value (then the full path decides)."""
     role = raw.get("role")
     t, sender, seq, tick = raw.get("t"), raw.get("sender"), raw.get("seq"), raw.get("tick")
-    if (spec is None or type(role) is not str or role not in _ROLE_SET or type(t) is not float
+    if (type(role) is not str or role not in _ROLE_SET or type(t) is not float
             or not -MAX_MAGNITUDE <= t <= MAX_MAGNITUDE or type(sender) is not int or type(seq) is not int
             or type(tick) is not int or not (0 <= sender <= _MAX_COUNT and 0 <= seq <= _MAX_COUNT
                                              and 0 <= tick <= _MAX_COUNT)):
         return None
-    cls, shapes = spec
     values = {"role": role, "sender": sender, "seq": seq, "tick": tick, "t": t}
     for name, shape in shapes:
         value = raw.get(name, _MISSING)
@@ -309,13 +326,7 @@ def _decode_fast(raw: dict) -> Message | None:
         elif value is not None:  # an optional shape is None here; any other shape is not on the fast path
             return None
         values[name] = value
-    if "link_age" in values and len(values["link_age"]) != len(values["link_drops"]):
-        return None
-    if "est_ph" in values and _partial_estimate(values):
-        return None
-    msg = _new(cls)
-    msg.__dict__.update(values)
-    return msg
+    return values
 
 
 def decode(payload: bytes) -> Message:
@@ -382,39 +393,23 @@ def decode_carried(payload: bytes) -> Message:
     (docs/benchmarks.md "Where the CPU of a tick goes").
     """
     try:
-        raw = _unpackb(payload, raw=False, strict_map_key=True)
+        raw = msgpack.unpackb(payload, raw=False, strict_map_key=True)
     except Exception:  # msgpack raises several unrelated types on garbage
         raw = None
     if type(raw) is dict and raw.get("kind") == "command" and raw.get("schema") == SCHEMA_VERSION:
-        get = raw.get
-        role, sender, seq, t, robot = get("role"), get("sender"), get("seq"), get("t"), get("robot")
-        tick, est_tick, est_t, est_ph, est_vh = get("tick"), get("est_tick"), get("est_t"), get("est_ph"), get("est_vh")
-        if (type(role) is str and role in _ROLE_SET and type(t) is float and -MAX_MAGNITUDE <= t <= MAX_MAGNITUDE
-                and type(sender) is int and type(seq) is int and type(tick) is int and type(robot) is int
-                and type(est_tick) is int and type(est_t) is float and -MAX_MAGNITUDE <= est_t <= MAX_MAGNITUDE
-                and 0 <= sender <= _MAX_COUNT and 0 <= seq <= _MAX_COUNT and 0 <= tick <= _MAX_COUNT
-                and 0 <= robot <= _MAX_COUNT and 0 <= est_tick <= _MAX_COUNT):
-            ph = _vec_or_none(est_ph)
-            vh = None if est_vh is None else _vec_or_none(est_vh)
-            if ph is not None and (vh is not None or est_vh is None):
-                est = _new(Estimate)
-                est.__dict__.update(role=role, sender=sender, seq=seq, tick=est_tick, t=est_t, robot=robot,
-                                    ph=ph, vh=vh)
-                return est
+        values = _fast_values(raw, _CARRIED)
+        if values is not None and values["est_tick"] is not None and values["est_t"] is not None \
+                and values["est_ph"] is not None:
+            est = _new(Estimate)
+            est.__dict__.update(role=values["role"], sender=values["sender"], seq=values["seq"],
+                                tick=values["est_tick"], t=values["est_t"], robot=values["robot"],
+                                ph=values["est_ph"], vh=values["est_vh"])
+            return est
     return decode(payload)
 
 
-def _vec_or_none(value) -> np.ndarray | None:
-    """``value`` as a (3,) array if it is 3 floats within bounds, as :func:`decode` takes them; else None."""
-    if type(value) is list and len(value) == 3:
-        x, y, z = value
-        if (type(x) is float and type(y) is float and type(z) is float and -MAX_MAGNITUDE <= x <= MAX_MAGNITUDE
-                and -MAX_MAGNITUDE <= y <= MAX_MAGNITUDE and -MAX_MAGNITUDE <= z <= MAX_MAGNITUDE):
-            return np.array(value)
-    return None
-
-
-_unpackb = msgpack.unpackb
+#: What a neighbour reads off a command besides the envelope (decode_carried), with decode's shapes.
+_CARRIED = tuple((name, _SHAPES[name]) for name in ("robot", "est_tick", "est_t", "est_ph", "est_vh"))
 
 
 def _partial_estimate(values: dict) -> bool:
