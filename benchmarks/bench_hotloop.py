@@ -1,8 +1,8 @@
-"""The Python work of one lock-step tick, timed in a hot loop: what a process does per tick
-without Zenoh, threads or cold caches.
+"""The Python work of one lock-step tick, timed in one process, hot and with its caches evicted:
+what a process does per tick, without Zenoh or threads.
 
     python benchmarks/bench_hotloop.py [CONFIG] [--robot 1] [--repeat 5] [--cold-mb 32]
-        [--out benchmarks/results/hotloop.json]
+        [--cold-ticks 1000] [--together K,K,...] [--out benchmarks/results/hotloop.json]
 
 Runs CONFIG in the in-process simulator once to record, as wire bytes, every
 message robot ``--robot`` and the world receive. Then, per tick, it times

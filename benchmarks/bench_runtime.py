@@ -141,7 +141,6 @@ def pss_mb(pid: int) -> float | None:
     """Proportional set size, MB: resident memory with each shared page (the Zenoh and numpy
     libraries every agent maps) divided among the processes sharing it: what one more agent costs."""
     return _proc_mb(f"/proc/{pid}/smaps_rollup", "Pss:")
-    return None
 
 
 def cpu_s(pid: int) -> float | None:
