@@ -226,9 +226,8 @@ def _role_main(argv: list[str]) -> int:
                 sent = j
     else:  # one robot, or several hosted by this process (each its own keys, state and token)
         robots = [int(x) for x in a.id.split(",")]
-        per_robot = a.neighbours.split(";") if ";" in a.neighbours or len(robots) > 1 else [a.neighbours]
         state = {}
-        for me, nb in zip(robots, per_robot):
+        for me, nb in zip(robots, a.neighbours.split(";")):
             nbrs = [int(x) for x in nb.split(",") if x]
             subscribe(f"world/sense/{me}", "sense", me, me)
             for j in nbrs:
@@ -370,8 +369,8 @@ def run_floor(config: str | Path, ticks: int, period: float = 0.0, topology: str
         router.wait(timeout=10)
     world = outs[-1]
     crossings = sum(o["sent"] + o["received"] for o in outs)
-    res = {"agents": sc.n, "robots_per_process": robots_per_process, "topology": topology, "ticks": world["ticks"], "wall_s": world["wall_s"],
-           "ticks_per_s": world["ticks_per_s"], "crossings_per_tick": round(crossings / world["ticks"], 2),
+    res = {"agents": sc.n, "robots_per_process": robots_per_process, "topology": topology, "ticks": world["ticks"],
+           "wall_s": world["wall_s"], "ticks_per_s": world["ticks_per_s"], "crossings_per_tick": round(crossings / world["ticks"], 2),
            "missed_ticks": world["missed_ticks"], "cpu_ms_per_tick": round(1e3 * sum(o["cpu_s"] for o in outs) / world["ticks"], 3),
            "load_avg": os.getloadavg()[0]}
     if period > 0:
