@@ -23,6 +23,7 @@ import math
 import os
 import time
 import tomllib
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -119,17 +120,37 @@ class SwarmUnderTest:
     def sim_time(self) -> float:
         return self.swarm.sim_time()
 
-    def wait_for_sim_time(self, t: float, timeout: float = 60.0) -> float:
-        """Block until the world has reported simulation time ``t`` (s); return the time heard."""
+    def wait_for(self, condition: Callable[[], bool], what: str, timeout: float = 60.0) -> float:
+        """Block until ``condition()`` holds (checked as the world's reports arrive); return the
+        simulation time heard. ``what`` names the wait in the error if it times out or the world
+        ends first."""
         end = time.monotonic() + timeout
-        while self.swarm.sim_time() < t - 1e-9:
+        while not condition():
             if time.monotonic() > end:
                 raise TimeoutError(f"simulation time {self.swarm.sim_time():.2f} s after {timeout:g} s, "
-                                   f"waiting for {t:g} s; deaths: {[d.describe() for d in self.deaths]}")
+                                   f"waiting for {what}; deaths: {[d.describe() for d in self.deaths]}")
             if not self.swarm.children["world"].running():
-                raise RuntimeError(f"the world ended at t = {self.swarm.sim_time():.2f} s before {t:g} s")
+                raise RuntimeError(f"the world ended at t = {self.swarm.sim_time():.2f} s before {what}")
             self.pump()
         return self.swarm.sim_time()
+
+    def wait_for_sim_time(self, t: float, timeout: float = 60.0) -> float:
+        """Block until the world has reported simulation time ``t`` (s); return the time heard."""
+        return self.wait_for(lambda: self.swarm.sim_time() >= t - 1e-9, f"{t:g} s", timeout)
+
+    def wait_for_silence(self, robot: int, ticks: int, timeout: float = 60.0) -> float:
+        """Block until the world has gone ``ticks`` ticks without ``robot``'s command, as its state
+        shows it: the links into the robot, as the robot last reported them, have aged that much
+        (``WorldState.link_age``). A frozen or cut-off robot's silence, seen by the world itself."""
+        from fxswarm.core.scenario import directed_links
+
+        into = [k for k, (_, i) in enumerate(directed_links(self.scenario)) if i == robot]
+
+        def silent() -> bool:
+            s = self.swarm.state
+            return s is not None and len(s.link_age) > 0 and min(int(s.link_age[k]) for k in into) >= ticks
+
+        return self.wait_for(silent, f"robot {robot} silent for {ticks} ticks", timeout)
 
     def step(self, ticks: int = 1, timeout: float = 30.0) -> float:
         """Wait until ``ticks`` more ticks have been reported (the run is not paused)."""
