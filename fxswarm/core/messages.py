@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 import threading
-from dataclasses import dataclass, field, fields
+from dataclasses import MISSING, dataclass, field, fields
 
 import msgpack
 import numpy as np
@@ -48,7 +48,44 @@ class WireError(ValueError):
     """A payload that is not a valid message of this schema."""
 
 
-@dataclass(frozen=True)
+def _message(cls):
+    """``@dataclass(frozen=True)`` with a quicker ``__init__``: the same signature and defaults,
+    but it fills the instance's ``__dict__`` directly. A frozen dataclass's own ``__init__`` sets
+    each field through ``object.__setattr__``, 4 us for a Command, and every message of the hot
+    path is built once (docs/benchmarks.md "Where the CPU of a tick goes"). Assignment after
+    construction still raises, as for any frozen dataclass; equality, repr and hashing read the
+    same attributes. Generated from ``fields()`` as dataclasses generates its own."""
+    cls = dataclass(frozen=True)(cls)
+    names = [f.name for f in fields(cls)]
+    ns: dict = {"_factory": {f.name: f.default_factory for f in fields(cls) if f.default_factory is not MISSING},
+                "_FACTORY": _FACTORY}
+    params = []
+    for f in fields(cls):
+        if f.default is not MISSING:
+            ns[f"_d_{f.name}"] = f.default
+            params.append(f"{f.name}=_d_{f.name}")
+        elif f.default_factory is not MISSING:
+            params.append(f"{f.name}=_FACTORY")
+        else:
+            params.append(f.name)
+    body = ["    d = self.__dict__"]
+    for name in names:
+        if name in ns["_factory"]:
+            body.append(f"    d[{name!r}] = _factory[{name!r}]() if {name} is _FACTORY else {name}")
+        else:
+            body.append(f"    d[{name!r}] = {name}")
+    exec(f"def __init__(self, {', '.join(params)}):\n" + "\n".join(body) + "\n", ns)
+    init = ns["__init__"]
+    init.__qualname__ = f"{cls.__qualname__}.__init__"
+    init.__doc__ = cls.__init__.__doc__
+    cls.__init__ = init
+    return cls
+
+
+_FACTORY = object()  # a field left to its default_factory
+
+
+@_message
 class Message:
     role: str  # sender's role: "world", "leader", "agent"
     sender: int  # sender's id (robot id for agents, 0 otherwise)
@@ -57,12 +94,12 @@ class Message:
     t: float  # simulation time of the content, s
 
 
-@dataclass(frozen=True)
+@_message
 class Clock(Message):
     """The world's tick: everyone may act for ``tick`` at time ``t``."""
 
 
-@dataclass(frozen=True)
+@_message
 class Sense(Message):
     """What the world tells robot ``robot`` alone: its position and nearest object."""
 
@@ -72,7 +109,7 @@ class Sense(Message):
     vo: np.ndarray | None  # (3,) that object's velocity, m/s
 
 
-@dataclass(frozen=True)
+@_message
 class LeaderState(Message):
     """The virtual leader's position ``p0(t)``."""
 
@@ -80,7 +117,7 @@ class LeaderState(Message):
     v0: np.ndarray | None = None  # (3,) its velocity dp0/dt, m/s; sent only with tracking = "feedforward"
 
 
-@dataclass(frozen=True)
+@_message
 class Estimate(Message):
     """A robot's estimate ``ph_i`` of the leader, for its graph neighbours."""
 
@@ -89,7 +126,7 @@ class Estimate(Message):
     vh: np.ndarray | None = None  # (3,) estimate of the leader's velocity, m/s (tracking = "feedforward")
 
 
-@dataclass(frozen=True)
+@_message
 class Command(Message):
     """A robot's velocity command, with what it reports about itself."""
 
@@ -113,13 +150,11 @@ class Command(Message):
         """The :class:`Estimate` this command carries (numbered as the command), or None."""
         if self.est_ph is None or self.est_tick is None or self.est_t is None:
             return None
-        est = _new(Estimate)
-        est.__dict__.update(role=self.role, sender=self.sender, seq=self.seq, tick=self.est_tick, t=self.est_t,
-                            robot=self.robot, ph=self.est_ph, vh=self.est_vh)
-        return est
+        return Estimate(self.role, self.sender, self.seq, self.est_tick, self.est_t, self.robot, self.est_ph,
+                        self.est_vh)
 
 
-@dataclass(frozen=True)
+@_message
 class WorldState(Message):
     """The world's whole state at a tick, for loggers and recorders."""
 
@@ -258,9 +293,8 @@ def _decode_fast(raw: dict) -> Message | None:
     :func:`decode`'s full path decides, and names the error).
 
     Accepts only what the full path accepts (same bounds, types and shapes), and builds the
-    same message: a frozen dataclass's ``__init__`` sets each field through
-    ``object.__setattr__``, several microseconds per message, so the fields are put in its
-    ``__dict__`` at once (dataclass equality, repr and hashing read the same attributes).
+    same message, its checked fields put in its ``__dict__`` at once (as its ``__init__`` would,
+    without passing them as keywords).
     """
     if raw.get("schema") != SCHEMA_VERSION:
         return None
@@ -400,11 +434,8 @@ def decode_carried(payload: bytes) -> Message:
         values = _fast_values(raw, _CARRIED)
         if values is not None and values["est_tick"] is not None and values["est_t"] is not None \
                 and values["est_ph"] is not None:
-            est = _new(Estimate)
-            est.__dict__.update(role=values["role"], sender=values["sender"], seq=values["seq"],
-                                tick=values["est_tick"], t=values["est_t"], robot=values["robot"],
-                                ph=values["est_ph"], vh=values["est_vh"])
-            return est
+            return Estimate(values["role"], values["sender"], values["seq"], values["est_tick"], values["est_t"],
+                            values["robot"], values["est_ph"], values["est_vh"])
     return decode(payload)
 
 
