@@ -9,7 +9,7 @@
 #                                    python3 and python3-venv) from the configured Debian mirror,
 #                                    imported with `docker import`.
 #   2. fxswarm-base-core:bookworm    that root plus a virtualenv at /opt/venv holding the project's
-#                                    core dependencies ([project] dependencies: numpy, msgpack,
+#                                    core dependencies ([project] dependencies: numpy, msgpack, msgspec,
 #                                    zenoh), the base of the agent, world, leader and router images.
 #   3. fxswarm-base-logger:bookworm  the core base plus the `logger` extra (rerun-sdk, pyarrow):
 #                                    the logger image's base. Built on the core base, so the two

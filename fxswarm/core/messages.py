@@ -33,8 +33,10 @@ from __future__ import annotations
 import math
 import threading
 from dataclasses import MISSING, dataclass, field, fields
+from typing import Annotated, Literal, Union
 
 import msgpack
+import msgspec
 import numpy as np
 
 SCHEMA_VERSION = 2  # 2: link health (link_age, link_drops) in Command and WorldState
@@ -278,101 +280,81 @@ def _check(name: str, shape: str, value):
     raise AssertionError(shape)
 
 
-# Per kind of the hot path, its fields after the envelope and their shapes, for _decode_fast.
-_FAST: dict[str, tuple[type, tuple[tuple[str, str], ...]]] = {
-    name: (cls, tuple((f, _SHAPES[f]) for f in _FIELDS[cls] if f not in ("role", "sender", "seq", "tick", "t")))
-    for name, cls in KINDS.items() if cls is not WorldState
-}
-_ROLE_SET = frozenset(ROLES)
+# The hot path's wire types, from _SHAPES: msgspec checks a payload's types, bounds and shapes
+# in C as it parses it, where a Python check per field cost more than parsing (docs/benchmarks.md
+# "Where the CPU of a tick goes"). It accepts only what decode's full path accepts; anything
+# else it refuses, and the full path then decides and names the error. Per msgspec: an int is
+# taken for a float (as the full path does), never a float or a bool for an int, nor an int for
+# a bool; NaN and infinities fail the bounds; unknown keys are skipped, as the full path ignores
+# them; a repeated key's last value is the one read, as msgpack.unpackb keeps it.
+_Number = Annotated[float, msgspec.Meta(ge=-MAX_MAGNITUDE, le=MAX_MAGNITUDE)]
+_Count = Annotated[int, msgspec.Meta(ge=0, le=_MAX_COUNT)]
+_Vector = tuple[_Number, _Number, _Number]
+_WIRE_TYPE = {"vec": _Vector, "vec?": _Vector | None, "int": _Count, "int?": _Count | None,
+              "float?": _Number | None, "bool": bool, "counts": tuple[_Count, ...]}
+_ENVELOPE = ("role", "sender", "seq", "tick", "t")
+
+
+def _wire_struct(kind: str, names: tuple[str, ...], tagged: bool = True) -> type[msgspec.Struct]:
+    """The msgspec type of a payload of ``kind`` holding the envelope and the fields ``names``,
+    with decode's shapes, and each field's default as on the full path (absent optional fields
+    None, absent ``flags`` 0). ``kind`` is the tag of a union's member (``tagged``), else a field
+    like the others: a lone tagged type would take a payload with no ``kind`` at all."""
+    spec = [("schema", Literal[SCHEMA_VERSION]), ("role", Literal[ROLES]), ("sender", _Count), ("seq", _Count),
+            ("tick", _Count), ("t", _Number)]
+    if not tagged:
+        spec.append(("kind", Literal[kind]))
+    for name in names:
+        typ = _WIRE_TYPE[_SHAPES[name]]
+        spec.append((name, typ, None) if name in _OPTIONAL else (name, typ, 0) if name == "flags" else (name, typ))
+    if tagged:
+        return msgspec.defstruct(f"_{kind}_wire", spec, kw_only=True, tag_field="kind", tag=kind)
+    return msgspec.defstruct(f"_{kind}_wire", spec, kw_only=True)
+
+
+# Per kind of the hot path (all but WorldState): its wire type, message class, fields and vectors.
+_HOT: dict[type, tuple[type, tuple[str, ...], tuple[str, ...]]] = {}
+for _kind, _cls in KINDS.items():
+    if _cls is not WorldState:
+        _names = tuple(f for f in _FIELDS[_cls] if f not in _ENVELOPE)
+        _HOT[_wire_struct(_kind, _names)] = (_cls, _ENVELOPE + _names,
+                                             tuple(f for f in _names if _SHAPES[f] in ("vec", "vec?")))
+_HOT_DECODER = msgspec.msgpack.Decoder(Union[tuple(_HOT)])
 _new = object.__new__
-_MISSING = object()
 
 
-def _decode_fast(raw: dict) -> Message | None:
-    """The usual message, checked and built in one pass; None for anything else (then
-    :func:`decode`'s full path decides, and names the error).
-
-    Accepts only what the full path accepts (same bounds, types and shapes), and builds the
-    same message, its checked fields put in its ``__dict__`` at once (as its ``__init__`` would,
-    without passing them as keywords).
-    """
-    if raw.get("schema") != SCHEMA_VERSION:
+def _decode_fast(payload: bytes) -> Message | None:
+    """The usual message, parsed and checked by msgspec and built in one pass; None for anything
+    else (then :func:`decode`'s full path decides, and names the error). Builds what the full
+    path builds: vectors as float arrays, counts as tuples."""
+    try:
+        wire = _HOT_DECODER.decode(payload)
+    except (msgspec.ValidationError, msgspec.DecodeError):
         return None
-    kind = raw.get("kind")
-    spec = _FAST.get(kind) if type(kind) is str else None
-    if spec is None:
-        return None
-    cls, shapes = spec
-    values = _fast_values(raw, shapes)
-    if values is None:
-        return None
+    cls, names, vectors = _HOT[type(wire)]
+    values = {name: getattr(wire, name) for name in names}
+    for name in vectors:
+        value = values[name]
+        if value is not None:
+            values[name] = np.array(value)
     if "link_age" in values and len(values["link_age"]) != len(values["link_drops"]):
         return None
     if "est_ph" in values and _partial_estimate(values):
         return None
     msg = _new(cls)
-    msg.__dict__.update(values)
+    msg.__dict__.update(values)  # its checked fields at once, as its __init__ would set them
     return msg
-
-
-def _fast_values(raw: dict, shapes: tuple[tuple[str, str], ...]) -> dict | None:
-    """The envelope and the fields ``shapes`` names, checked as the full path checks them (vectors
-    as arrays, counts as tuples); None if any is not the usual value (then the full path decides)."""
-    role = raw.get("role")
-    t, sender, seq, tick = raw.get("t"), raw.get("sender"), raw.get("seq"), raw.get("tick")
-    if (type(role) is not str or role not in _ROLE_SET or type(t) is not float
-            or not -MAX_MAGNITUDE <= t <= MAX_MAGNITUDE or type(sender) is not int or type(seq) is not int
-            or type(tick) is not int or not (0 <= sender <= _MAX_COUNT and 0 <= seq <= _MAX_COUNT
-                                             and 0 <= tick <= _MAX_COUNT)):
-        return None
-    values = {"role": role, "sender": sender, "seq": seq, "tick": tick, "t": t}
-    for name, shape in shapes:
-        value = raw.get(name, _MISSING)
-        if value is _MISSING:
-            if name not in _OPTIONAL:
-                return None
-            value = None  # left out by encode: absent means None, as on the full path
-        if shape == "vec" or (shape == "vec?" and value is not None):
-            if type(value) is not list or len(value) != 3:
-                return None
-            x, y, z = value
-            if not (type(x) is float and type(y) is float and type(z) is float
-                    and -MAX_MAGNITUDE <= x <= MAX_MAGNITUDE and -MAX_MAGNITUDE <= y <= MAX_MAGNITUDE
-                    and -MAX_MAGNITUDE <= z <= MAX_MAGNITUDE):
-                return None
-            value = np.array(value)
-        elif shape == "int" or (shape == "int?" and value is not None):
-            if type(value) is not int or not 0 <= value <= _MAX_COUNT:
-                return None
-        elif shape == "float?" and value is not None:
-            if type(value) is not float or not -MAX_MAGNITUDE <= value <= MAX_MAGNITUDE:
-                return None
-        elif shape == "bool":
-            if type(value) is not bool:
-                return None
-        elif shape == "counts":
-            if type(value) is not list:
-                return None
-            for x in value:
-                if type(x) is not int or not 0 <= x <= _MAX_COUNT:
-                    return None
-            value = tuple(value)
-        elif value is not None:  # an optional shape is None here; any other shape is not on the fast path
-            return None
-        values[name] = value
-    return values
 
 
 def decode(payload: bytes) -> Message:
     """Parse and validate a wire payload; raises :class:`WireError` on anything malformed."""
+    msg = _decode_fast(payload)
+    if msg is not None:
+        return msg
     try:
         raw = msgpack.unpackb(payload, raw=False, strict_map_key=True)
     except Exception as exc:  # msgpack raises several unrelated types on garbage
         raise WireError(f"not msgpack: {type(exc).__name__}") from None
-    if type(raw) is dict:
-        msg = _decode_fast(raw)
-        if msg is not None:
-            return msg
     if not isinstance(raw, dict):
         raise WireError("not a map")
     if raw.get("schema") != SCHEMA_VERSION:
@@ -427,20 +409,19 @@ def decode_carried(payload: bytes) -> Message:
     (docs/benchmarks.md "Where the CPU of a tick goes").
     """
     try:
-        raw = msgpack.unpackb(payload, raw=False, strict_map_key=True)
-    except Exception:  # msgpack raises several unrelated types on garbage
-        raw = None
-    if type(raw) is dict and raw.get("kind") == "command" and raw.get("schema") == SCHEMA_VERSION:
-        values = _fast_values(raw, _CARRIED)
-        if values is not None and values["est_tick"] is not None and values["est_t"] is not None \
-                and values["est_ph"] is not None:
-            return Estimate(values["role"], values["sender"], values["seq"], values["est_tick"], values["est_t"],
-                            values["robot"], values["est_ph"], values["est_vh"])
+        est = _CARRIED_DECODER.decode(payload)
+    except (msgspec.ValidationError, msgspec.DecodeError):
+        est = None
+    if est is not None and est.est_tick is not None and est.est_t is not None and est.est_ph is not None:
+        return Estimate(est.role, est.sender, est.seq, est.est_tick, est.est_t, est.robot, np.array(est.est_ph),
+                        None if est.est_vh is None else np.array(est.est_vh))
     return decode(payload)
 
 
-#: What a neighbour reads off a command besides the envelope (decode_carried), with decode's shapes.
-_CARRIED = tuple((name, _SHAPES[name]) for name in ("robot", "est_tick", "est_t", "est_ph", "est_vh"))
+#: What a neighbour reads off a command (decode_carried): the envelope, ``robot`` and the carried
+#: estimate, with decode's shapes; the command's other keys are skipped unread.
+_CARRIED_DECODER = msgspec.msgpack.Decoder(
+    _wire_struct("command", ("robot", "est_tick", "est_t", "est_ph", "est_vh"), tagged=False))
 
 
 def _partial_estimate(values: dict) -> bool:

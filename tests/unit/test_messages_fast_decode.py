@@ -7,6 +7,8 @@ import math
 import msgpack
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fxswarm.core import messages as m
 
@@ -19,11 +21,16 @@ VALID = [
     m.Estimate("agent", 2, 7, 3, 0.03, 2, V),
     m.Command("agent", 2, 7, 3, 0.03, 2, V, V, True, 5, (0, 2), (1, 0)),
 ]
+# Commands that carry the robot's next estimate (neighbours read it: decode_carried).
+CARRYING = [
+    m.Command("agent", 2, 7, 3, 0.03, 2, V, V, True, 5, (0, 2), (1, 0), None, 4, 0.04, V, None),
+    m.Command("agent", 2, 7, 3, 0.03, 2, V, V, False, 0, (0,), (0,), V, 4, 0.04, V, 2 * V),  # feedforward
+]
 
 
 def full_path(payload: bytes, monkeypatch) -> object:
     with monkeypatch.context() as mp:
-        mp.setattr(m, "_decode_fast", lambda raw: None)
+        mp.setattr(m, "_decode_fast", lambda payload: None)
         try:
             return m.decode(payload)
         except m.WireError as exc:
@@ -45,8 +52,7 @@ def same(a, b) -> bool:
 @pytest.mark.parametrize("msg", VALID, ids=lambda x: type(x).__name__)
 def test_valid_messages_decode_alike_and_fast(msg, monkeypatch):
     payload = m.encode(msg)
-    raw = msgpack.unpackb(payload)
-    assert m._decode_fast(raw) is not None  # the usual message does take the fast path
+    assert m._decode_fast(payload) is not None  # the usual message does take the fast path
     fast, full = both(payload, monkeypatch)
     assert same(fast, full) and same(fast, msg)
 
@@ -59,10 +65,12 @@ MUTATIONS = [
     ("p", [1.0, 2.0, 1e10]), ("p", None), ("po", None), ("po", "x"), ("ph", (1.0, 2.0, 3.0)),
     ("v", [True, 0.0, 0.0]), ("avoid_active", 1), ("flags", -1), ("flags", None), ("link_age", [0]),
     ("link_age", [0, -1]), ("link_age", [0, 1.0]), ("link_drops", "ab"), ("p0", [0.0, 0.0]),
+    ("link_age", [0, 2**60]), ("link_drops", [True, 0]), ("est_tick", -1), ("est_tick", 2**60), ("est_tick", 4.0),
+    ("est_t", math.nan), ("est_t", 2), ("est_ph", [1.0, 2.0]), ("est_vh", [1, 2, 3]), ("vh", [0.0, 0.0, 2e9]),
 ]
 
 
-@pytest.mark.parametrize("msg", VALID, ids=lambda x: type(x).__name__)
+@pytest.mark.parametrize("msg", VALID + CARRYING, ids=lambda x: type(x).__name__)
 @pytest.mark.parametrize("field,value", MUTATIONS)
 def test_altered_messages_decode_alike(msg, field, value, monkeypatch):
     raw = msgpack.unpackb(m.encode(msg))
@@ -83,17 +91,13 @@ def test_missing_fields_decode_alike(msg, monkeypatch):
 def test_a_refused_message_is_refused_by_the_fast_path_too():
     raw = msgpack.unpackb(m.encode(VALID[1]))
     raw["p"] = [0.0, math.nan, 0.0]
-    assert m._decode_fast(raw) is None
+    assert m._decode_fast(msgpack.packb(raw)) is None
     with pytest.raises(m.WireError, match="'p'"):
         m.decode(msgpack.packb(raw))
 
 
 # --- decode_carried: what a graph neighbour reads off a robot's command key -------------------
 
-CARRYING = [
-    m.Command("agent", 2, 7, 3, 0.03, 2, V, V, True, 5, (0, 2), (1, 0), None, 4, 0.04, V, None),
-    m.Command("agent", 2, 7, 3, 0.03, 2, V, V, False, 0, (0,), (0,), V, 4, 0.04, V, 2 * V),  # feedforward
-]
 ON_A_COMMAND_KEY = CARRYING + [
     m.Command("agent", 2, 7, 3, 0.03, 2, V, V, True, 5, (0, 2), (1, 0)),  # the last tick: carries none
     m.Estimate("agent", 2, 1, 0, 0.0, 2, V),  # a robot's first estimate, sent alone
@@ -151,3 +155,117 @@ def test_what_only_the_world_reads_is_left_to_the_world(field, value):
     with pytest.raises(m.WireError):
         m.decode(payload)
     assert same(m.decode_carried(payload), CARRYING[0].carried_estimate())
+
+
+# --- the wire as msgspec reads it: what a dict of the payload cannot show ----------------------
+
+def packed_map(items) -> bytes:
+    """A msgpack map of ``items`` in order, repeated keys kept (msgpack.packb of a dict cannot)."""
+    return b"\xde" + len(items).to_bytes(2, "big") + b"".join(msgpack.packb(k) + msgpack.packb(v) for k, v in items)
+
+
+UNREAD = {"v": [0.0, 0.0, 0.0], "ph": [0.0, 0.0, 0.0], "avoid_active": False, "flags": 0, "link_age": [],
+          "link_drops": [], "vh": None}  # a command's fields a neighbour leaves to the world, valid
+
+
+def carried_reference(payload: bytes):
+    """What a neighbour must read off ``payload``, by the full path: a command's carried estimate,
+    whatever the fields it does not read hold (the world checks those); else decode's outcome."""
+    try:
+        raw = msgpack.unpackb(payload, strict_map_key=True)
+    except Exception:
+        raw = None
+    if type(raw) is dict and raw.get("kind") == "command":
+        try:
+            cmd = m.decode(msgpack.packb({**raw, **UNREAD}))
+        except m.WireError:
+            cmd = None
+        if type(cmd) is m.Command and cmd.carried_estimate() is not None:
+            return cmd.carried_estimate()
+    return as_a_neighbour_sees_it(lambda: m.decode(payload))
+
+
+def outcomes(payload: bytes, monkeypatch):
+    """decode's and decode_carried's outcomes, each beside its reference by the full path."""
+    fast, full = both(payload, monkeypatch)
+    lean = as_a_neighbour_sees_it(lambda: m.decode_carried(payload))
+    return (fast, full), (lean, carried_reference(payload))
+
+
+@pytest.mark.parametrize("msg", VALID + CARRYING, ids=lambda x: type(x).__name__)
+@pytest.mark.parametrize("change", ["repeat-last", "repeat-first", "kind-twice", "no-kind", "extra-key",
+                                    "int-key", "bin-key", "schema-float", "float32"])
+def test_wire_forms_decode_alike(msg, change, monkeypatch):
+    items = list(msgpack.unpackb(m.encode(msg)).items())
+    if change == "repeat-last":  # the last value of a repeated key is read, as msgpack keeps it
+        items.append(("tick", 99))
+    elif change == "repeat-first":
+        items.insert(0, ("tick", -5))
+    elif change == "kind-twice":
+        items.insert(0, ("kind", "clock"))
+    elif change == "no-kind":
+        items = [(k, v) for k, v in items if k != "kind"]
+    elif change == "extra-key":
+        items.append(("unheard_of", [float("nan"), b"\x00"]))
+    elif change == "int-key":
+        items.append((7, 1.0))
+    elif change == "bin-key":
+        items.append((b"tick", 3))
+    elif change == "schema-float":
+        items = [(k, float(v) if k == "schema" else v) for k, v in items]
+    payload = packed_map(items)
+    if change == "float32":  # a vector's floats as msgpack float32
+        raw = dict(items)
+        raw["t"] = 0.5
+        payload = msgpack.packb(raw, use_single_float=True)
+    for got, reference in outcomes(payload, monkeypatch):
+        assert same(got, reference), (got, reference)
+
+
+# Values a field may be given, weighted to the edges of decode's shapes: vectors of 2 to 4
+# mostly valid numbers, integers at and beyond the bounds, floats as integers and integers as
+# floats, booleans for numbers and numbers for booleans, nothing, text and bytes.
+NUMBER = st.one_of(st.floats(-1e9, 1e9), st.integers(-3, 3),
+                   st.sampled_from([math.nan, math.inf, -math.inf, 1e9 + 1, -2e9, True, None, "1"]))
+ANY_VALUE = st.one_of(
+    st.lists(NUMBER, min_size=2, max_size=4), st.lists(st.floats(-1e9, 1e9), min_size=3, max_size=3),
+    st.lists(st.integers(-1, 3), max_size=3), st.lists(st.booleans(), max_size=2),
+    st.integers(-3, 3), st.sampled_from([-1, 2**53, 2**53 + 1, 2**63, 2**64 - 1, -2**63]),
+    NUMBER, st.floats(allow_nan=True, allow_infinity=True), st.sampled_from([2.0, 0.0, -0.0, 1e9]),
+    st.booleans(), st.none(), st.text(max_size=3), st.binary(max_size=3),
+    st.sampled_from(list(m.KINDS) + list(m.ROLES) + ["nope"]),
+)
+FIELDS = ["schema", "kind", "role", "sender", "seq", "tick", "t", "robot", "p", "po", "vo", "p0", "v0", "ph", "vh",
+          "v", "avoid_active", "flags", "link_age", "link_drops", "est_tick", "est_t", "est_ph", "est_vh"]
+
+
+def near(valid) -> st.SearchStrategy:
+    """A value near a field's valid one: an element replaced, one more or fewer, or another type."""
+    if type(valid) is list:
+        edited = st.tuples(st.integers(0, max(len(valid) - 1, 0)), st.one_of(NUMBER, ANY_VALUE)).map(
+            lambda e: [e[1] if i == e[0] else x for i, x in enumerate(valid)] or [e[1]])
+        return st.one_of(edited, st.just(valid + valid[:1]), st.just(valid[1:]), ANY_VALUE)
+    if type(valid) is bool:
+        return st.one_of(st.sampled_from([0, 1, None, "true", 1.0]), ANY_VALUE)
+    if type(valid) is int:
+        return st.one_of(st.sampled_from([valid + 1, -1, 2**53, 2**53 + 1, float(valid), True, None]), ANY_VALUE)
+    if type(valid) is float:
+        return st.one_of(st.sampled_from([math.nan, math.inf, 1e9 + 1, round(valid) if math.isfinite(valid) else 0, True, None, "x"]), ANY_VALUE)
+    return ANY_VALUE
+
+
+@settings(max_examples=1500, deadline=None)
+@given(msg=st.sampled_from(VALID + CARRYING), data=st.data())
+def test_any_altered_message_decodes_alike(msg, data):
+    """msgspec's checks (the fast path) accept exactly what the full path accepts, and build the same:
+    one field, then perhaps another, given a value near its own or any other; perhaps one dropped."""
+    raw = msgpack.unpackb(m.encode(msg))
+    for _ in range(data.draw(st.integers(1, 2))):
+        field = data.draw(st.sampled_from(sorted(raw)) | st.sampled_from(FIELDS))
+        raw[field] = data.draw(near(raw[field]) if field in raw else ANY_VALUE)
+    if data.draw(st.booleans()):
+        raw.pop(data.draw(st.sampled_from(sorted(raw))))
+    payload = msgpack.packb(raw)
+    with pytest.MonkeyPatch.context() as mp:
+        for got, reference in outcomes(payload, mp):
+            assert same(got, reference), (got, reference)
