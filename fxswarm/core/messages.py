@@ -197,33 +197,36 @@ _OPTIONAL = frozenset({"vh", "v0", "est_tick", "est_t", "est_ph", "est_vh"})
 
 
 def encode(msg: Message) -> bytes:
-    """The msgpack wire form of ``msg``."""
+    """The msgpack wire form of ``msg``: a map of the envelope (``schema``, ``kind``), then its
+    fields in order, optional ones left out when None. Arrays and numpy scalars travel as lists
+    and plain numbers (msgspec calls :func:`_plain` for them); the rest msgspec writes in C."""
     # Envelope keys must not collide with field names (Command and WorldState have a field "v").
     cls = type(msg)
     out = {"schema": SCHEMA_VERSION, "kind": _KIND_OF[cls]}
-    held = msg.__dict__  # the fields' values, without a getattr each
-    for name in _FIELDS[cls]:
-        value = held[name]
-        kind = type(value)
-        if value is None:
-            if name in _OPTIONAL:
-                continue  # absent on the wire: "paper" tracking sends the bytes it always did
-        elif kind is float or kind is int or kind is str or kind is bool:
-            pass  # the usual scalars, without an isinstance each
-        elif kind is np.ndarray:
-            value = value.tolist()
-        elif isinstance(value, np.generic):
-            value = value.item()
-        out[name] = value
+    out.update(msg.__dict__)  # exactly its fields, in order: set only by its __init__ or by decode
+    for name in _LEFT_OUT[cls]:
+        if out[name] is None:
+            del out[name]  # absent on the wire: "paper" tracking sends the bytes it always did
     try:
-        pack = _local.pack
+        write = _local.encode
     except AttributeError:  # this thread's first message
-        pack = _local.pack = msgpack.Packer(use_bin_type=True, autoreset=True).pack
-    return pack(out)
+        write = _local.encode = msgspec.msgpack.Encoder(enc_hook=_plain).encode
+    return write(out)
 
 
-# One Packer per thread (a Packer is not thread-safe; packb would build one per message).
+def _plain(obj):
+    """What msgspec writes for a value it does not know: an array as (nested) lists, a numpy
+    scalar as a Python number."""
+    if isinstance(obj, (np.ndarray, np.generic)):
+        return obj.tolist()
+    raise TypeError(f"cannot put a {type(obj).__name__} on the wire")
+
+
+# One Encoder per thread: an Encoder keeps its output buffer between calls, and _plain runs
+# Python code mid-message, where another thread could take the GIL and the same Encoder.
 _local = threading.local()
+#: Per message class, its fields left out of the wire form when None.
+_LEFT_OUT = {cls: tuple(name for name in _FIELDS[cls] if name in _OPTIONAL) for cls in KINDS.values()}
 
 
 def _finite_number(x) -> bool:
