@@ -315,13 +315,19 @@ def _wire_struct(kind: str, names: tuple[str, ...], tagged: bool = True) -> type
     return msgspec.defstruct(f"_{kind}_wire", spec, kw_only=True)
 
 
-# Per kind of the hot path (all but WorldState): its wire type, message class, fields and vectors.
-_HOT: dict[type, tuple[type, tuple[str, ...], tuple[str, ...]]] = {}
-for _kind, _cls in KINDS.items():
-    if _cls is not WorldState:
-        _names = tuple(f for f in _FIELDS[_cls] if f not in _ENVELOPE)
-        _HOT[_wire_struct(_kind, _names)] = (_cls, _ENVELOPE + _names,
-                                             tuple(f for f in _names if _SHAPES[f] in ("vec", "vec?")))
+def _hot_types() -> dict[type, tuple[type, tuple[str, ...], tuple[str, ...]]]:
+    """Per kind of the hot path (all but WorldState): its wire type -> (message class, its fields,
+    those that are vectors)."""
+    out = {}
+    for kind, cls in KINDS.items():
+        if cls is not WorldState:
+            names = tuple(f for f in _FIELDS[cls] if f not in _ENVELOPE)
+            out[_wire_struct(kind, names)] = (cls, _ENVELOPE + names,
+                                              tuple(f for f in names if _SHAPES[f] in ("vec", "vec?")))
+    return out
+
+
+_HOT = _hot_types()
 _HOT_DECODER = msgspec.msgpack.Decoder(Union[tuple(_HOT)])
 _new = object.__new__
 
