@@ -226,7 +226,7 @@ def _role_main(argv: list[str]) -> int:
                 sent = j
     else:  # one robot, or several hosted by this process (each its own keys, state and token)
         robots = [int(x) for x in a.id.split(",")]
-        state = {}
+        hosted = {}  # robot id -> its publishers and what it has heard and done
         for me, nb in zip(robots, a.neighbours.split(";")):
             nbrs = [int(x) for x in nb.split(",") if x]
             subscribe(f"world/sense/{me}", "sense", me, me)
@@ -234,7 +234,7 @@ def _role_main(argv: list[str]) -> int:
                 subscribe(f"agent/{j}/estimate", "estimate", j, me)
             if me in pinned:
                 subscribe("leader/state", "leader", 0, me)
-            state[me] = {"cmd": publisher(f"agent/{me}/cmd", sizes["cmd"][str(me)]),
+            hosted[me] = {"cmd": publisher(f"agent/{me}/cmd", sizes["cmd"][str(me)]),
                          "est": publisher(f"agent/{me}/estimate", sizes["estimate"]),
                          "held": {j: -1 for j in nbrs}, "leader": -1 if me in pinned else 1 << 62,
                          "sense": -1, "acted": -1, "estimated": -1}
@@ -247,7 +247,7 @@ def _role_main(argv: list[str]) -> int:
                 cpu0.append(time.process_time())
             counts["received"] += 1
             k = int.from_bytes(payload[:8], "little", signed=True)
-            r = state[me]
+            r = hosted[me]
             if kind == "sense":
                 r["sense"] = k
                 if a.period > 0:  # real time: act at once on what is held
