@@ -145,6 +145,9 @@ class SwarmUnderTest:
         from fxswarm.core.scenario import directed_links
 
         into = [k for k, (_, i) in enumerate(directed_links(self.scenario)) if i == robot]
+        if not into:
+            raise ValueError(f"robot {robot}: no links into it in scenario {self.scenario.name!r}, so the "
+                             f"world's state cannot show its silence")
 
         def silent() -> bool:
             s = self.swarm.state
