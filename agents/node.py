@@ -13,6 +13,7 @@ extrapolate, when to stop) is made here from the time stamps it is given.
 
 from __future__ import annotations
 
+import dataclasses
 from collections import deque
 from collections.abc import Collection
 
@@ -73,6 +74,7 @@ class AgentNode:
         self.leader: LeaderState | None = None
         self.acted_tick = -1
         self.acted_t: float | None = None  # real time: the simulation time of the last act, s
+        self.last_command: topics.Outgoing | None = None  # real time: sent again if the world asks again
         # Lock-step pipelining: a robot sends its tick-(k+1) estimate as soon as it has acted on
         # tick k (the estimate is final then), so neighbours hold it before tick k+1's sensing
         # arrives; a neighbour's estimate for a tick after the one this robot acts on next waits
@@ -127,6 +129,15 @@ class AgentNode:
                 return out
             if self.sense is not None and msg.tick < self.sense.tick:
                 return out  # an old sensing message overtaken by a newer one
+            if not self.lockstep and msg.tick == self.acted_tick and self.last_command is not None:
+                # The world holding its clock asks again (RealTimeWorld.tick): the answer it
+                # lacks was lost on the way, and time has not moved, so that answer goes again,
+                # numbered anew as the new transmission it is.
+                self.seq_said += 1
+                topic, cmd = self.last_command
+                self.last_command = topic, dataclasses.replace(cmd, seq=self.seq_said)
+                out.append(self.last_command)
+                return out
             self.sense = msg
             if not getattr(msg, "replayed", False):
                 self.sensed_t, self.since_sense_s = msg.t, 0.0
@@ -337,7 +348,8 @@ class AgentNode:
         cmd = Command("agent", self.id, self.seq_said, s.tick, s.t, self.id, np.array(v), ph_used, avoid_active,
                       flags, self.link_ages(now), tuple(self.in_links.drops), vh_used if self.feedforward else None,
                       est_tick, est_t, est_ph, est_vh)
-        return self._command_topic, cmd
+        self.last_command = self._command_topic, cmd
+        return self.last_command
 
     def fresh_sensing(self) -> bool:
         """Real time: whether sensing newer than the last act is held (act on it at once)."""

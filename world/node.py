@@ -352,8 +352,14 @@ class RealTimeWorld:
     survive. Likewise the clock holds (``held_ticks``) while a live robot has not answered
     for more than ``max_lag`` ticks (0: never): on a shared machine a robot starved of CPU is
     an artefact (in the field each robot has its own), so the world waits for it, up to
-    ``hold_limit`` s at a time. ``sent_at[k]`` is the clock time the world sent sensing for
-    tick ``k``; the first command of each robot for tick ``k`` gives one latency sample.
+    ``hold_limit`` s at a time. While it holds, it sends each lagging robot its sensing of the
+    current tick again, once a period: a robot acts only on fresh sensing, so one whose sensing
+    or answer was lost on the way (messages are dropped, not queued, when a link is congested)
+    would otherwise stay silent until the limit, and the swarm would crawl at a tick per
+    ``hold_limit`` with its CPUs idle. A robot that has acted on that tick sends its command
+    again (:meth:`~fxswarm.agents.node.AgentNode.handle`). ``sent_at[k]`` is the clock time the
+    world sent sensing for tick ``k``; the first command of each robot for tick ``k`` gives one
+    latency sample.
     """
 
     def __init__(self, world: WorldNode, period: float, clock: WallClock, max_lag: int = 10,
@@ -368,6 +374,8 @@ class RealTimeWorld:
         self.answered: set[tuple[int, int]] = set()
         self.latencies: list[float] = []  # s
         self.last_tick: dict[int, int] = {}  # robot -> the latest tick it has answered
+        self.sent: list[topics.Outgoing] = []  # the current tick's messages (sensing asked again while holding)
+        self.asked_again = 0  # sensing messages sent again while holding
 
     def subscriptions(self) -> list[str]:
         return self.inner.subscriptions()
@@ -388,43 +396,48 @@ class RealTimeWorld:
         self.started = self.clock()
         self.pacer.next_due = self.started + self.pacer.period
         out = self.inner.start()
-        self._sent(self.inner.tick)
+        self._sent(self.inner.tick, out)
         return out
 
-    def lagging(self, alive: Collection[int]) -> bool:
-        """Whether a robot in ``alive`` (ids of live processes) is more than ``max_lag`` ticks behind."""
+    def lagging(self, alive: Collection[int]) -> list[int]:
+        """The robots in ``alive`` (ids of live processes) more than ``max_lag`` ticks behind."""
         if self.max_lag <= 0:
-            return False
+            return []
         oldest = self.inner.tick - self.max_lag
-        return any(self.last_tick.get(r, -1) < oldest for r in alive)
+        return [r for r in alive if self.last_tick.get(r, -1) < oldest]
 
     def tick(self, alive: Collection[int] = ()) -> list[topics.Outgoing]:
         """The pacer's tick is due: hold the clock for a lagging live robot (up to ``hold_limit``
         s at a time), else integrate one ``dt`` on the held commands and emit the next tick."""
         world = self.inner
-        if self.lagging(alive):
+        lagging = self.lagging(alive)
+        if lagging:
             if self.holding is None:
                 self.holding = Deadline(self.hold_limit, self.clock)
             if not self.holding.passed():
                 self.pacer.hold()
-                return []
+                keys = {topics.sense_topic(r) for r in lagging}
+                again = [m for m in self.sent if m[0] in keys]
+                self.asked_again += len(again)
+                return again
         self.holding = None
         self.pacer.on_time()
         out = world.advance(world.sc.dt)
-        self._sent(world.tick)
+        self._sent(world.tick, out)
         return out
 
     def report(self) -> dict:
-        """``late_ticks``, ``held_ticks``, ``achieved_speed`` (simulation s per clock s) and
-        ``sense_to_command`` (:func:`latency_stats`)."""
+        """``late_ticks``, ``held_ticks``, ``sensing_sent_again`` (while holding), ``achieved_speed``
+        (simulation s per clock s) and ``sense_to_command`` (:func:`latency_stats`)."""
         elapsed = self.clock() - self.started if self.started is not None else 0.0
         world = self.inner
-        return {"late_ticks": self.pacer.late, "held_ticks": self.pacer.held,
+        return {"late_ticks": self.pacer.late, "held_ticks": self.pacer.held, "sensing_sent_again": self.asked_again,
                 "achieved_speed": world.tick * world.sc.dt / elapsed if elapsed > 0 else None,
                 "sense_to_command": latency_stats(self.latencies)}
 
-    def _sent(self, tick: int) -> None:
+    def _sent(self, tick: int, out: list[topics.Outgoing]) -> None:
         self.sent_at[tick] = self.clock()
+        self.sent = out
         old = tick - 1000  # keep the maps bounded: a command later than 1000 ticks is no answer
         self.sent_at.pop(old, None)
         if len(self.answered) > 20_000:

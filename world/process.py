@@ -110,7 +110,7 @@ def gone_robots(proc: RoleProcess) -> set[int]:
 def run_realtime(proc: RoleProcess, world_rt: RealTimeWorld) -> dict:
     """Tick when ``world_rt``'s pacer says so (:class:`~fxswarm.world.node.RealTimeWorld`
     decides: late ticks, holds for lagging robots); stop when the run is done. Returns its
-    report (``late_ticks``, ``held_ticks``, ``achieved_speed``, ``sense_to_command``)."""
+    report (``late_ticks``, ``held_ticks``, ``sensing_sent_again``, ``achieved_speed``, ``sense_to_command``)."""
     world: WorldNode = proc.core
     robots = [r.id for r in proc.sc.robots]
     proc.clock.start_now()
@@ -162,8 +162,8 @@ def main(args: argparse.Namespace) -> int:
             runner = dict(clock=args.clock, speed=args.speed if not proc.lockstep else None,
                           complete=world.done, missed_ticks=world.missed_ticks,
                           missed_ticks_per_robot={str(r.id): int(m) for r, m in zip(sc.robots, world.misses)})
-            runner.update({k: extra[k] for k in ("sense_to_command", "late_ticks", "held_ticks", "achieved_speed")
-                           if k in extra})
+            runner.update({k: extra[k] for k in ("sense_to_command", "late_ticks", "held_ticks", "sensing_sent_again",
+                                                 "achieved_speed") if k in extra})
 
             def summarise(processes: dict) -> dict:
                 return build_summary(sc, world.trajectory(), proc.plan, wall_s=wall, world=world, runner=runner,

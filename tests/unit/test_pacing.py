@@ -8,6 +8,7 @@ stop without sensing, the leader's once-per-time state.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -238,6 +239,33 @@ def test_realtime_world_holds_the_clock_for_a_lagging_robot_up_to_the_limit(sc):
     assert rt.inner.tick == before + 1
 
 
+def test_a_holding_world_asks_the_lagging_robot_again_each_period_and_goes_on_once_it_answers(sc):
+    """Robot n's answers are lost: while the clock is held, the world sends it (and only it) its
+    sensing of the current tick again, once a period, instead of waiting out the hold limit."""
+    clock = FakeClock()
+    rt = realtime_world(sc, clock, max_lag=3, hold_limit=1.0)
+    alive = range(1, sc.n + 1)
+    for k in range(4):  # robots 1..n-1 answer ticks 0..3; robot n's answers never arrive
+        for r in range(1, sc.n):
+            rt.handle(topics.command_topic(r), command(r, k, k * sc.dt, [0, 0, 0]))
+        if k < 3:
+            clock.advance(0.01)
+            rt.tick(alive)
+    sent_at_3 = dict(rt.sent)
+    for held in (1, 2):
+        clock.advance(0.01)
+        out = rt.tick(alive)
+        assert rt.inner.tick == 3 and rt.pacer.held == held
+        assert [topic for topic, _ in out] == [topics.sense_topic(sc.n)]  # the lagging robot's, no one else's
+        assert out[0][1] is sent_at_3[topics.sense_topic(sc.n)]  # tick 3's sensing, as first sent
+    rt.handle(topics.command_topic(sc.n), command(sc.n, 3, 3 * sc.dt, [0, 0, 0]))  # asked again, it answers
+    clock.advance(0.01)
+    out = rt.tick(alive)
+    assert rt.inner.tick == 4 and rt.pacer.held == 2
+    assert sum(type(m) is Sense for _, m in out) == sc.n  # tick 4 for everyone
+    assert rt.report()["sensing_sent_again"] == 2
+
+
 def test_the_world_holds_a_silent_robots_last_command_then_stops_it(sc):
     clock = FakeClock()
     rt = realtime_world(sc, clock)
@@ -281,6 +309,33 @@ def test_agent_integrates_the_world_time_since_its_last_act_and_not_twice(sc):
     _, cmd = agent.act_realtime(3 * sc.dt)[0]
     rate = (agent.ph - ph) / (3 * sc.dt)
     assert np.all(np.isfinite(rate)) and agent.since_sense_s == pytest.approx(3 * sc.dt)
+
+
+def test_a_real_time_agent_asked_again_for_a_tick_sends_its_answer_again_numbered_anew(sc):
+    """The world holding its clock sends a robot the sensing it already acted on: the robot's
+    answer was lost, so it sends that command again (a new transmission: a new number), without
+    acting again (time has not moved). In lock-step a repeated sensing gets no answer."""
+    agent = AgentNode(sc, 1, lockstep=False)
+    agent.handle(topics.sense_topic(1), sense(sc, 0))
+    [(topic, first)] = agent.act_realtime(0.0)
+    ph, acted_t = agent.ph.copy(), agent.acted_t
+    seqs = []
+    for _ in range(2):
+        [(again_topic, again)] = agent.handle(topics.sense_topic(1), sense(sc, 0))
+        assert again_topic == topic == topics.command_topic(1)
+        assert dataclasses.replace(again, seq=first.seq) == first  # the same command, field for field
+        seqs.append(again.seq)
+    assert seqs == [first.seq + 1, first.seq + 2]
+    np.testing.assert_array_equal(agent.ph, ph)
+    assert agent.acted_t == acted_t and not agent.fresh_sensing()
+    assert agent.handle(topics.sense_topic(1), sense(sc, 1)) == [] and agent.fresh_sensing()  # a new tick: act
+
+    lockstep = AgentNode(sc, 3, lockstep=True)  # robot 3 is not pinned: its neighbours 2 and 4
+    lockstep.handle(topics.sense_topic(3), dataclasses.replace(sense(sc, 0), robot=3))
+    for j in sc.neighbours(3):
+        lockstep.handle(topics.estimate_topic(j), Estimate("agent", j, 1, 0, 0.0, j, np.zeros(3)))
+    assert lockstep.acted_tick == 0
+    assert lockstep.handle(topics.sense_topic(3), dataclasses.replace(sense(sc, 0), robot=3)) == []
 
 
 def test_agent_holds_a_silent_neighbour_until_stale_then_extrapolates(sc):
