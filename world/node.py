@@ -407,8 +407,9 @@ class RealTimeWorld:
         return [r for r in alive if self.last_tick.get(r, -1) < oldest]
 
     def tick(self, alive: Collection[int] = ()) -> list[topics.Outgoing]:
-        """The pacer's tick is due: hold the clock for a lagging live robot (up to ``hold_limit``
-        s at a time), else integrate one ``dt`` on the held commands and emit the next tick."""
+        """The pacer's tick is due: hold the clock for the lagging live robots (up to ``hold_limit``
+        s at a time) and send them their sensing again, else integrate one ``dt`` on the held
+        commands and emit the next tick."""
         world = self.inner
         lagging = self.lagging(alive)
         if lagging:
