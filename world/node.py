@@ -22,7 +22,7 @@ from __future__ import annotations
 import functools
 import itertools
 import math
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 
 import numpy as np
 
@@ -363,8 +363,9 @@ class RealTimeWorld:
     """
 
     def __init__(self, world: WorldNode, period: float, clock: WallClock, max_lag: int = 10,
-                 hold_limit: float = 1.0) -> None:
+                 hold_limit: float = 1.0, cut_off: Callable[[int, float], bool] | None = None) -> None:
         self.inner = world
+        self.cut_off = cut_off  # (robot, t) -> whether a fault plan cuts it off from the world now
         self.clock = clock
         self.pacer = Pacer(period, clock)
         self.max_lag, self.hold_limit = max_lag, hold_limit
@@ -400,11 +401,17 @@ class RealTimeWorld:
         return out
 
     def lagging(self, alive: Collection[int]) -> list[int]:
-        """The robots in ``alive`` (ids of live processes) more than ``max_lag`` ticks behind."""
+        """The robots in ``alive`` (ids of live processes) more than ``max_lag`` ticks behind, but
+        for those a fault plan cuts off from the world now: their silence is the experiment, not
+        an artefact of the machine, so it is not waited for (as lock-step does not wait)."""
         if self.max_lag <= 0:
             return []
         oldest = self.inner.tick - self.max_lag
-        return [r for r in alive if self.last_tick.get(r, -1) < oldest]
+        behind = [r for r in alive if self.last_tick.get(r, -1) < oldest]
+        if behind and self.cut_off is not None:
+            t = self.inner.t
+            behind = [r for r in behind if not self.cut_off(r, t)]
+        return behind
 
     def tick(self, alive: Collection[int] = ()) -> list[topics.Outgoing]:
         """The pacer's tick is due: hold the clock for the lagging live robots (up to ``hold_limit``

@@ -178,11 +178,20 @@ class FaultPlan:
         worst = max((r.max_latency for r in self.rules if fnmatchcase(receiver, r.dst)), default=0.0)
         return int(math.ceil(worst / dt - 1e-9)) + 1 if worst > 0 else 0
 
+    def cut(self, sender: str, receiver: str, kind: str, t: float) -> bool:
+        """Whether a partition cuts ``sender``'s messages of ``kind`` to ``receiver`` at time ``t`` (s)."""
+        return any(c.cuts(sender, receiver, kind, t) for c in self.cuts)
+
+    def cut_off_from_world(self, robot: int, t: float) -> bool:
+        """Whether a partition keeps robot ``robot`` and the world from answering each other at
+        time ``t`` (s): its sensing or its commands cut (the real-time world does not wait for it)."""
+        me = f"agent:{robot}"
+        return self.cut("world", me, "sense", t) or self.cut(me, "world", "command", t)
+
     def fate(self, sender: str, receiver: str, kind: str, tick: int, t: float) -> Fate:
         """The fate of ``sender``'s tick-``tick`` message of ``kind`` at ``receiver`` (pure)."""
-        for cut in self.cuts:
-            if cut.cuts(sender, receiver, kind, t):
-                return Fate(True, "cut")
+        if self.cuts and self.cut(sender, receiver, kind, t):
+            return Fate(True, "cut")
         if kind not in FAULTABLE_KINDS:
             return DELIVERED
         link = (sender, receiver, kind)

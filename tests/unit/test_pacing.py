@@ -19,6 +19,7 @@ from fxswarm.core import bus as topics
 from fxswarm.core.messages import Command, Estimate, LeaderState, Sense
 from fxswarm.core.pacing import Deadline, Pacer, SimClock
 from fxswarm.core.scenario import load
+from fxswarm.faults.plan import parse_faults
 from fxswarm.leader.node import LeaderNode
 from fxswarm.world.node import RealTimeWorld, TickTimer, WorldNode
 
@@ -264,6 +265,29 @@ def test_a_holding_world_asks_the_lagging_robot_again_each_period_and_goes_on_on
     assert rt.inner.tick == 4 and rt.pacer.held == 2
     assert sum(type(m) is Sense for _, m in out) == sc.n  # tick 4 for everyone
     assert rt.report()["sensing_sent_again"] == 2
+
+
+def test_a_real_time_world_does_not_hold_for_a_robot_a_fault_plan_cuts_off(sc):
+    """Robot n's commands to the world are cut from 0.03 s to 0.08 s: its silence is the
+    experiment, so the clock goes on through the cut; once the cut is over, it holds again."""
+    plan = parse_faults({"partitions": [{"start": 0.03, "end": 0.08, "links": [f"agent:{sc.n}->world"],
+                                       "kinds": ["command"]}]}, 7, sc.n)
+    assert plan.cut_off_from_world(sc.n, 0.05) and not plan.cut_off_from_world(sc.n, 0.08)
+    assert not plan.cut_off_from_world(1, 0.05)
+    clock = FakeClock()
+    rt = realtime_world(sc, clock, max_lag=3, hold_limit=1.0, cut_off=plan.cut_off_from_world)
+    alive = range(1, sc.n + 1)
+    for k in range(8):  # robot n is silent throughout; the others answer every tick
+        for r in range(1, sc.n):
+            rt.handle(topics.command_topic(r), command(r, k, k * sc.dt, [0, 0, 0]))
+        clock.advance(0.01)
+        rt.tick(alive)
+    assert rt.inner.tick == 8 and rt.pacer.held == 0  # 3 ticks behind from t = 0.03, but cut off until 0.08
+    for r in range(1, sc.n):
+        rt.handle(topics.command_topic(r), command(r, 8, 8 * sc.dt, [0, 0, 0]))
+    clock.advance(0.01)
+    assert rt.tick(alive) == [m for m in rt.sent if m[0] == topics.sense_topic(sc.n)]  # t = 0.08: held, asked
+    assert rt.inner.tick == 8 and rt.pacer.held == 1
 
 
 def test_the_world_holds_a_silent_robots_last_command_then_stops_it(sc):
