@@ -56,7 +56,7 @@ def build_node(scenario: Scenario, args: argparse.Namespace, plan: FaultPlan,
     node = WorldNode(scenario, limits=plan.limits)
     if args.clock == "realtime":
         node = RealTimeWorld(node, scenario.dt / args.speed, clock, args.max_lag, args.tick_timeout,
-                             cut_off=plan.cut_off_from_world if plan.cuts else None)
+                             cut_off=plan.cut_off_from_world)
     return wrap_node(node, "world", 0, plan, scenario, args)
 
 

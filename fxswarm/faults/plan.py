@@ -190,7 +190,7 @@ class FaultPlan:
 
     def fate(self, sender: str, receiver: str, kind: str, tick: int, t: float) -> Fate:
         """The fate of ``sender``'s tick-``tick`` message of ``kind`` at ``receiver`` (pure)."""
-        if self.cuts and self.cut(sender, receiver, kind, t):
+        if self.cut(sender, receiver, kind, t):
             return Fate(True, "cut")
         if kind not in FAULTABLE_KINDS:
             return DELIVERED
