@@ -293,6 +293,10 @@ def _check(name: str, shape: str, value):
 _Number = Annotated[float, msgspec.Meta(ge=-MAX_MAGNITUDE, le=MAX_MAGNITUDE)]
 _Count = Annotated[int, msgspec.Meta(ge=0, le=_MAX_COUNT)]
 _Vector = tuple[_Number, _Number, _Number]
+# The version as the full path compares it (== SCHEMA_VERSION, so 2.0 too): decode_carried's
+# read fields must be refused exactly when the full path refuses them, else its fallback to
+# decode would judge the fields a neighbour does not read.
+_Schema = Annotated[float, msgspec.Meta(ge=SCHEMA_VERSION, le=SCHEMA_VERSION)]
 _WIRE_TYPE = {"vec": _Vector, "vec?": _Vector | None, "int": _Count, "int?": _Count | None,
               "float?": _Number | None, "bool": bool, "counts": tuple[_Count, ...]}
 _ENVELOPE = ("role", "sender", "seq", "tick", "t")
@@ -303,7 +307,7 @@ def _wire_struct(kind: str, names: tuple[str, ...], tagged: bool = True) -> type
     with decode's shapes, and each field's default as on the full path (absent optional fields
     None, absent ``flags`` 0). ``kind`` is the tag of a union's member (``tagged``), else a field
     like the others: a lone tagged type would take a payload with no ``kind`` at all."""
-    spec = [("schema", Literal[SCHEMA_VERSION]), ("role", Literal[ROLES]), ("sender", _Count), ("seq", _Count),
+    spec = [("schema", _Schema), ("role", Literal[ROLES]), ("sender", _Count), ("seq", _Count),
             ("tick", _Count), ("t", _Number)]
     if not tagged:
         spec.append(("kind", Literal[kind]))

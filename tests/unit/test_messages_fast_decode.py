@@ -194,7 +194,7 @@ def outcomes(payload: bytes, monkeypatch):
 
 @pytest.mark.parametrize("msg", VALID + CARRYING, ids=lambda x: type(x).__name__)
 @pytest.mark.parametrize("change", ["repeat-last", "repeat-first", "kind-twice", "no-kind", "extra-key",
-                                    "int-key", "bin-key", "schema-float", "float32"])
+                                    "int-key", "bin-key", "schema-float", "schema-float-bad-unread", "float32"])
 def test_wire_forms_decode_alike(msg, change, monkeypatch):
     items = list(msgpack.unpackb(m.encode(msg)).items())
     if change == "repeat-last":  # the last value of a repeated key is read, as msgpack keeps it
@@ -213,6 +213,8 @@ def test_wire_forms_decode_alike(msg, change, monkeypatch):
         items.append((b"tick", 3))
     elif change == "schema-float":
         items = [(k, float(v) if k == "schema" else v) for k, v in items]
+    elif change == "schema-float-bad-unread":  # a neighbour takes the estimate; the world refuses the command
+        items = [(k, 2.0 if k == "schema" else None if k == "avoid_active" else v) for k, v in items]
     if change == "float32":  # every float as msgpack float32
         payload = msgpack.packb({**dict(items), "t": 0.5}, use_single_float=True)
     else:
