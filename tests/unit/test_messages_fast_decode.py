@@ -240,6 +240,11 @@ FIELDS = ["schema", "kind", "role", "sender", "seq", "tick", "t", "robot", "p", 
           "v", "avoid_active", "flags", "link_age", "link_drops", "est_tick", "est_t", "est_ph", "est_vh"]
 
 
+def packable(i: int) -> int:
+    """``i`` held to msgpack's integers (-2**63 .. 2**64 - 1), so that a near value can be sent."""
+    return max(-2**63, min(i, 2**64 - 1))
+
+
 def near(valid) -> st.SearchStrategy:
     """A value near a field's valid one: an element replaced, one more or fewer, or another type."""
     if type(valid) is list:
@@ -249,9 +254,11 @@ def near(valid) -> st.SearchStrategy:
     if type(valid) is bool:
         return st.one_of(st.sampled_from([0, 1, None, "true", 1.0]), ANY_VALUE)
     if type(valid) is int:
-        return st.one_of(st.sampled_from([valid + 1, -1, 2**53, 2**53 + 1, float(valid), True, None]), ANY_VALUE)
+        return st.one_of(st.sampled_from([packable(valid + 1), -1, 2**53, 2**53 + 1, float(valid), True, None]),
+                         ANY_VALUE)
     if type(valid) is float:
-        return st.one_of(st.sampled_from([math.nan, math.inf, 1e9 + 1, round(valid) if math.isfinite(valid) else 0, True, None, "x"]), ANY_VALUE)
+        return st.one_of(st.sampled_from([math.nan, math.inf, 1e9 + 1, packable(round(valid)) if math.isfinite(valid) else 0,
+                                          True, None, "x"]), ANY_VALUE)
     return ANY_VALUE
 
 
