@@ -73,6 +73,11 @@ class LinkRule:
         return kind in self.kinds and fnmatchcase(sender, self.src) and fnmatchcase(receiver, self.dst)
 
     @property
+    def loses_all(self) -> bool:
+        """Whether every message this rule matches is lost, whatever its tick."""
+        return self.drop >= 1.0 or (self.burst is not None and min(self.burst.loss_good, self.burst.loss_bad) >= 1.0)
+
+    @property
     def max_latency(self) -> float:
         return self.delay + self.jitter + (self.reorder_delay if self.reorder > 0 else 0.0)
 
@@ -183,10 +188,16 @@ class FaultPlan:
         return any(c.cuts(sender, receiver, kind, t) for c in self.cuts)
 
     def cut_off_from_world(self, robot: int, t: float) -> bool:
-        """Whether a partition keeps robot ``robot`` and the world from answering each other at
-        time ``t`` (s): its sensing or its commands cut (the real-time world does not wait for it)."""
+        """Whether the plan keeps robot ``robot`` and the world from answering each other at
+        time ``t`` (s): its sensing or its commands cut by a partition, or lost, every one, by a
+        link rule (the real-time world does not wait for it)."""
         me = f"agent:{robot}"
-        return self.cut("world", me, "sense", t) or self.cut(me, "world", "command", t)
+        return (self.cut("world", me, "sense", t) or self.cut(me, "world", "command", t)
+                or self.loses_all("world", me, "sense") or self.loses_all(me, "world", "command"))
+
+    def loses_all(self, sender: str, receiver: str, kind: str) -> bool:
+        """Whether a link rule drops every message of ``kind`` from ``sender`` to ``receiver``."""
+        return any(r.loses_all and r.matches(sender, receiver, kind) for r in self.rules)
 
     def fate(self, sender: str, receiver: str, kind: str, tick: int, t: float) -> Fate:
         """The fate of ``sender``'s tick-``tick`` message of ``kind`` at ``receiver`` (pure)."""

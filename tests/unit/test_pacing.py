@@ -290,6 +290,29 @@ def test_a_real_time_world_does_not_hold_for_a_robot_a_fault_plan_cuts_off(sc):
     assert rt.inner.tick == 8 and rt.pacer.held == 1
 
 
+@pytest.mark.parametrize("rule, lost", [
+    ({"drop": 1.0}, True),
+    ({"burst": {"p_good_bad": 0.1, "p_bad_good": 0.5, "loss_good": 1.0}}, True),
+    ({"drop": 0.99}, False),  # some get through: asking again is what helps
+    ({"burst": {"p_good_bad": 0.1, "p_bad_good": 0.5}}, False),
+])
+def test_a_real_time_world_does_not_hold_for_a_robot_whose_link_rule_loses_every_command(sc, rule, lost):
+    """A link rule that loses all of robot n's commands to the world cuts it off for the whole
+    run, like a partition that never ends: the world does not hold a second a tick for it."""
+    plan = parse_faults({"links": [{"link": f"agent:{sc.n}->world", "kinds": ["command"], **rule}]}, 7, sc.n)
+    assert plan.cut_off_from_world(sc.n, 0.0) is lost and plan.cut_off_from_world(sc.n, 9.0) is lost
+    assert not plan.cut_off_from_world(1, 0.0)
+    clock = FakeClock()
+    rt = realtime_world(sc, clock, max_lag=3, hold_limit=1.0, cut_off=plan.cut_off_from_world)
+    alive = range(1, sc.n + 1)
+    for k in range(6):  # robot n is never heard from
+        for r in range(1, sc.n):
+            rt.handle(topics.command_topic(r), command(r, k, k * sc.dt, [0, 0, 0]))
+        clock.advance(0.01)
+        rt.tick(alive)
+    assert (rt.inner.tick, rt.pacer.held) == ((6, 0) if lost else (3, 3))  # held from tick 3
+
+
 def test_the_world_holds_a_silent_robots_last_command_then_stops_it(sc):
     clock = FakeClock()
     rt = realtime_world(sc, clock)
