@@ -74,8 +74,14 @@ from fxswarm.faults.plan import CLI_HELP as FAULT_HELP
 from fxswarm.faults.plan import FAULTS_ENV, PLAN_ENV, FaultPlan, dumps, plan_of
 
 ROUTER_PORT = 7447
+#: What the images hold (the role Dockerfiles and docker/install-role.sh), for every launcher:
+#: where the scenario is mounted, where a run is written (the images' volume) ...
 IN_CONTAINER_SCENARIO = "/app/scenario.toml"
 IN_CONTAINER_RUNS = "/app/runs"
+#: ... the unprivileged user every process runs as ...
+USER_ID = 10001
+#: ... and, in secure mode, where each container finds its keys (compose and Swarm mount secrets there).
+SECRETS_DIR = "/run/secrets"
 #: Health checks cost a Python start each (~0.2 s of CPU): often only where compose waits on one.
 HEALTH_INTERVAL_S = 10
 WAITED_ON_INTERVAL_S = 2
@@ -209,9 +215,6 @@ def services(scenario: Scenario, scenario_path: str, context: str, plan: FaultPl
     return secure_services(out, scenario, keys)
 
 
-SECRETS_DIR = "/run/secrets"
-
-
 def secure_services(out: dict, scenario: Scenario, keys: str) -> dict:
     """Secure mode: each service its own key as compose secrets, a user that can read them.
 
@@ -226,7 +229,7 @@ def secure_services(out: dict, scenario: Scenario, keys: str) -> dict:
         for s in own:
             secrets[s] = {"file": f"{keys}/{s}"}
         spec["secrets"] = ["ca.pem", *own]
-        spec["user"] = var("FXSWARM_UID", "10001") + ":" + var("FXSWARM_GID", "10001")
+        spec["user"] = var("FXSWARM_UID", str(USER_ID)) + ":" + var("FXSWARM_GID", str(USER_ID))
         # A TLS handshake and a Python start on a loaded host can outlast health's default 2 s:
         # give it most of the check's 5 s, and a few more tries before "unhealthy".
         spec["healthcheck"]["test"] = [*spec["healthcheck"]["test"], "--timeout", "4"]

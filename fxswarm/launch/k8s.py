@@ -51,11 +51,9 @@ from pathlib import Path
 
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.plan import FAULTS_ENV, PLAN_ENV, FaultPlan, dumps, plan_of
-from fxswarm.launch.compose import ROUTER_PORT, add_fault_and_secure_arguments, image
-from fxswarm.launch.stack import (AGENT_KEYS_DIR, IN_CONTAINER_RUNS, IN_CONTAINER_SCENARIO, SECRETS_DIR, WAIT_TIMEOUT_S,
-                                  check_ids, checked_keys, dump_yaml, header)
-
-UID = 10001
+from fxswarm.launch.compose import (IN_CONTAINER_RUNS, IN_CONTAINER_SCENARIO, ROUTER_PORT, SECRETS_DIR, USER_ID,
+                                    add_fault_and_secure_arguments, image)
+from fxswarm.launch.stack import AGENT_KEYS_DIR, WAIT_TIMEOUT_S, check_ids, checked_keys, dump_yaml, header
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -134,7 +132,7 @@ def manifests(sc: Scenario, scenario_text: str, swarm: str, tag: str = "latest",
         if role == "router":
             container["ports"] = [{"name": "zenoh", "containerPort": ROUTER_PORT, "protocol": "TCP"}]
         spec = {
-            "securityContext": {"runAsNonRoot": True, "runAsUser": UID, "runAsGroup": UID, "fsGroup": UID},
+            "securityContext": {"runAsNonRoot": True, "runAsUser": USER_ID, "runAsGroup": USER_ID, "fsGroup": USER_ID},
             "containers": [container],
             "volumes": [{"name": "scenario", "configMap": {"name": f"{swarm}-scenario"}},
                         {"name": "runs", "emptyDir": {}}, {"name": "tmp", "emptyDir": {}}],

@@ -54,20 +54,15 @@ from pathlib import Path
 
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.plan import FAULTS_ENV, PLAN_ENV, FaultPlan, dumps, plan_of
-from fxswarm.launch.compose import IMAGES, ROUTER_PORT, add_fault_and_secure_arguments, image, relative_path, var
+from fxswarm.launch.compose import (HEALTH_INTERVAL_S, IMAGES, IN_CONTAINER_RUNS, IN_CONTAINER_SCENARIO, ROUTER_PORT,
+                                    SECRETS_DIR, USER_ID, add_fault_and_secure_arguments, image, relative_path, var)
 
-IN_CONTAINER_SCENARIO = "/app/scenario.toml"
-IN_CONTAINER_RUNS = "/app/runs"
 NETWORK = "fxswarm"
 #: The world waits this long for everyone: many tasks starting on a few cores take minutes.
 WAIT_TIMEOUT_S = 600
-HEALTH_INTERVAL_S = 10
-#: Secure mode: where each task finds its keys (Swarm mounts secrets there) ...
-SECRETS_DIR = "/run/secrets"
-#: ... and where an agent task's entrypoint puts its own pair, picked from all of them (a tmpfs).
+#: Secure mode: where an agent task's entrypoint puts its own pair, picked from all of them in
+#: SECRETS_DIR (a tmpfs).
 AGENT_KEYS_DIR = "/run/fxswarm-keys"
-#: The images' unprivileged user, which every process runs as.
-USER_ID = 10001
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

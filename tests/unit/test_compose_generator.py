@@ -25,6 +25,18 @@ def test_the_committed_compose_file_is_what_the_generator_writes():
         "docker-compose.yml is stale: run `fxswarm compose configs/paper-fast.toml -o docker-compose.yml`"
 
 
+def test_the_launchers_image_facts_are_the_images():
+    """Compose, Swarm and Kubernetes files all take the user, the run folder and the working
+    folder from compose.py; the images set them in the role Dockerfiles and install-role.sh."""
+    install = (REPO / "docker" / "install-role.sh").read_text()
+    assert f"groupadd --system --gid {compose.USER_ID} fxswarm" in install
+    assert f"useradd --system --uid {compose.USER_ID} --gid fxswarm --home-dir /app" in install
+    for _, dockerfile, _ in compose.IMAGES.values():
+        text = (REPO / dockerfile).read_text()
+        assert f'VOLUME ["{compose.IN_CONTAINER_RUNS}"]' in text, dockerfile
+        assert f"WORKDIR {os.path.dirname(compose.IN_CONTAINER_SCENARIO)}" in text, dockerfile
+
+
 def test_one_service_per_process_all_clients_of_the_router():
     doc = compose.services(load(PAPER_FAST), "./configs/paper-fast.toml", ".")["services"]
     assert list(doc) == ["router", "logger", "leader", *(f"agent-{i}" for i in range(1, 7)), "world"]
