@@ -395,6 +395,8 @@ def parse(data: dict, source: str = "<scenario>") -> Scenario:
         grf.fail("topology", "exactly one of 'topology' (" + ", ".join(TOPOLOGIES) + ") or 'edges'",
                  show_got=False)
     if grf.has("topology"):
+        if grf.has("weights"):
+            grf.fail("weights", "weights only with 'edges' (a topology's edges all weigh 1)", show_got=False)
         edges = topology_edges(grf.string("topology", choices=TOPOLOGIES), n)
         weights = None
     else:

@@ -77,6 +77,7 @@ def test_wrong_vector_length_names_file_field_and_count(tmp_path):
         (lambda d: d.pop("robots"), "robots", "an array of tables"),
         (lambda d: d["formation"].update(amplitude=[0.1, 0]), "formation.amplitude", "3 numbers"),
         (lambda d: d.update(extra={"a": 1}), "extra", "no such field"),
+        (lambda d: d["graph"].update(weights=[5.0] * 6), "graph.weights", "weights only with 'edges'"),
     ],
 )
 def test_each_validation_error_names_its_field(tmp_path, mutate, field, expected):
