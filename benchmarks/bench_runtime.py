@@ -46,7 +46,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from fxswarm.launch.launcher import Swarm, free_port, topology_options  # noqa: E402
-from fxswarm.runtime.zenoh_bus import TOPOLOGIES  # noqa: E402
+from fxswarm.core.scenario import RUN_TOPOLOGIES  # noqa: E402
 from fxswarm.testing import scenario_with  # noqa: E402
 
 from bench_floor import floor_lockstep, floor_realtime  # noqa: E402  (a sibling script)
@@ -311,7 +311,7 @@ def main() -> int:
                    help="runs of each lock-step and real-time measurement; the median is reported "
                         "(default 3, 1 with --quick)")
     p.add_argument("--only", choices=("pingpong", "lockstep", "realtime"), action="append")
-    p.add_argument("--topology", choices=TOPOLOGIES, default="auto",
+    p.add_argument("--topology", choices=RUN_TOPOLOGIES, default="auto",
                    help="of the swarms (default: what `fxswarm run` picks, mesh for 6 robots, routed for 24)")
     p.add_argument("--config", action="append", default=None, metavar="TOML",
                    help="scenario to measure (repeatable; default: paper-fast and large)")

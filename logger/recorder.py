@@ -60,19 +60,9 @@ class RecorderOptions:
 
     @classmethod
     def from_scenario(cls, sc: Scenario, **overrides) -> "RecorderOptions":
-        """Defaults, then the scenario's ``[logging]`` table, then ``overrides`` (not None)."""
-        known = set(cls.__dataclass_fields__)
-        table = sc.raw.get("logging", {}) if isinstance(sc.raw, dict) else {}
-        unknown = sorted(set(table) - known)
-        if unknown:
-            raise ValueError(f"{sc.source}: [logging] {unknown[0]}: unknown key (expected one of "
-                             f"{', '.join(sorted(known))})")
-        values = dict(table)
-        values.update({k: v for k, v in overrides.items() if v is not None})
-        opts = cls(**values)
-        if not (opts.rate_hz > 0 and math.isfinite(opts.rate_hz)):
-            raise ValueError(f"{sc.source}: [logging] rate_hz: expected a positive number, got {opts.rate_hz!r}")
-        return opts
+        """Defaults, then the scenario's ``[logging]`` table (checked when the scenario was read),
+        then ``overrides`` (not None)."""
+        return cls(**{**sc.logging, **{k: v for k, v in overrides.items() if v is not None}})
 
 
 class LinkHealth:

@@ -65,6 +65,8 @@ class Scenario:
     tracking: str = "paper"  # [estimator] tracking: "paper" (eq. (11)) or "feedforward" (fxswarm.core.observer)
     observer: EstimatorGains | None = None  # eq. (obs)'s gains (L1, L2, L3 as K1, K2, K3); only with feedforward
     observer_graph: str = "oriented"  # [estimator] observer_graph (OBSERVER_GRAPHS): the links eq. (obs) uses
+    logging: dict = field(repr=False, default_factory=dict)  # [logging], checked: the keys given (the logger's defaults)
+    zenoh: dict = field(repr=False, default_factory=dict)  # [zenoh], checked: the keys given (the command line wins)
 
     @property
     def n(self) -> int:
@@ -153,10 +155,24 @@ class _Fields:
             return None
         return self.number(key, positive=positive)
 
-    def integer(self, key: str, default: int) -> int:
+    def integer(self, key: str, default: int, *, minimum: int | None = None) -> int:
         value = self.table.get(key, default)
         if isinstance(value, bool) or not isinstance(value, int):
             self.fail(key, "an integer", value)
+        if minimum is not None and value < minimum:
+            self.fail(key, f"an integer >= {minimum}", value)
+        return value
+
+    def boolean(self, key: str) -> bool:
+        value = self.table.get(key)
+        if not isinstance(value, bool):
+            self.fail(key, "true or false", value)
+        return value
+
+    def strings(self, key: str) -> list[str]:
+        value = self.table.get(key)
+        if not isinstance(value, list) or not all(isinstance(x, str) for x in value):
+            self.fail(key, "a list of strings", value)
         return value
 
     def string(self, key: str, default: str | None = None, choices: tuple[str, ...] | None = None) -> str:
@@ -335,6 +351,42 @@ def _tracking(ef: _Fields, estimator: EstimatorGains) -> tuple[str, EstimatorGai
     return tracking, observer, ef.string("observer_graph", "oriented", OBSERVER_GRAPHS)
 
 
+#: [zenoh] mode and topology: the role commands' --mode and `fxswarm run`'s --topology take the same.
+ZENOH_MODES = ("peer", "client", "router")
+RUN_TOPOLOGIES = ("auto", "mesh", "routed")
+
+
+def _logging(lf: _Fields) -> dict:
+    """[logging], checked here so a wrong key fails before any process starts, not in the logger."""
+    lf.check_known({"rate_hz", "velocities", "trail_s", "trail_dt", "stale_ticks", "recent_drop_s",
+                    "flush_frames", "flush_wall_s"})
+    out: dict = {}
+    for key in lf.table:
+        if key == "velocities":
+            out[key] = lf.boolean(key)
+        elif key in ("stale_ticks", "flush_frames"):
+            out[key] = lf.integer(key, 0, minimum=0 if key == "stale_ticks" else 1)
+        else:
+            out[key] = lf.number(key, positive=key in ("rate_hz", "trail_dt"), nonnegative=True)
+    return out
+
+
+def _zenoh(zf: _Fields) -> dict:
+    """[zenoh], checked as the command line's Zenoh options are."""
+    zf.check_known({"swarm", "mode", "connect", "listen", "multicast", "lease_ms", "topology"})
+    out: dict = {}
+    for key in zf.table:
+        if key in ("connect", "listen"):
+            out[key] = zf.strings(key)
+        elif key == "multicast":
+            out[key] = zf.boolean(key)
+        elif key == "lease_ms":
+            out[key] = zf.integer(key, 0, minimum=1)
+        else:
+            out[key] = zf.string(key, choices={"mode": ZENOH_MODES, "topology": RUN_TOPOLOGIES}.get(key))
+    return out
+
+
 def parse(data: dict, source: str = "<scenario>") -> Scenario:
     """Validate a parsed TOML document into a :class:`Scenario`."""
     top = _Fields(source, data)
@@ -449,6 +501,7 @@ def parse(data: dict, source: str = "<scenario>") -> Scenario:
         formation=formation, avoidance=avoidance, estimator=estimator, raw=data,
         variant=variant, estimator_variant=estimator_variant, discretisation=discretisation,
         delay_compensation=delay_compensation, tracking=tracking, observer=observer, observer_graph=observer_graph,
+        logging=_logging(top.table_at("logging")), zenoh=_zenoh(top.table_at("zenoh")),
     )
     if observer is not None:
         accel = max_acceleration_inf(leader)

@@ -36,7 +36,7 @@ import numpy as np
 
 from fxswarm.core import bus as topics
 from fxswarm.core.messages import WireError, WorldState, decode
-from fxswarm.core.scenario import Scenario
+from fxswarm.core.scenario import RUN_TOPOLOGIES, Scenario
 from fxswarm.faults.plan import CLI_HELP as FAULT_HELP
 from fxswarm.faults.plan import FaultPlan, dumps, plan_of, resolve
 from fxswarm.faults.process import ProcessSchedule
@@ -45,7 +45,7 @@ from fxswarm.runtime.numbers import non_negative_int, port, positive, positive_i
 from fxswarm.runtime.output import prepare_run_folder, read_process_counters, write_summary
 from fxswarm.runtime.process import CLOCKS, PARENT_ENV
 from fxswarm.runtime.config import load_or_exit, plan_or_exit
-from fxswarm.runtime.zenoh_bus import TOPOLOGIES, ConnectError, ZenohBus, ZenohOptions, check_sender, zenoh_table
+from fxswarm.runtime.zenoh_bus import ConnectError, ZenohBus, ZenohOptions, check_sender
 
 # "auto" meshes swarms up to this many robots. Measured (docs/design.md "Topology";
 # docs/benchmarks.md "Topology: mesh against routed"): with 6 robots a mesh takes the router's
@@ -226,17 +226,13 @@ class Swarm:
         if self.plan is None:
             self.plan = resolve(self.scenario, self.faults)  # ScenarioError names a wrong spec
         self.plan_path = self.out / "fault-plan.json"
-        try:
-            zen = zenoh_table(self.scenario.raw.get("zenoh"), self.scenario.source)
-        except ValueError as exc:
-            print(f"fxswarm run: {exc}", file=sys.stderr)
-            raise SystemExit(2) from None
+        zen = self.scenario.zenoh
         self.swarm = self.swarm or zen.get("swarm") or f"{self.scenario.name}-{os.getpid()}"
         self.port = self.port or free_port()
         self.endpoint = f"{'tls' if self.secure else 'tcp'}/127.0.0.1:{self.port}"
         self.topology = self.topology or zen.get("topology") or "auto"
-        if self.topology not in TOPOLOGIES:
-            raise ValueError(f"topology: expected one of {', '.join(TOPOLOGIES)}, got {self.topology!r}")
+        if self.topology not in RUN_TOPOLOGIES:
+            raise ValueError(f"topology: expected one of {', '.join(RUN_TOPOLOGIES)}, got {self.topology!r}")
         if self.secure:
             self.topology = secure_topology(self.topology, self.audit)
         if self.topology == "auto":
@@ -561,7 +557,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--port", type=port, default=None, help="router port on 127.0.0.1 (default: a free one)")
     p.add_argument("--tick-timeout", type=positive, default=1.0, metavar="S",
                    help="lock-step: a tick waits at most S s for its commands (default 1)")
-    p.add_argument("--topology", choices=TOPOLOGIES, default=None,
+    p.add_argument("--topology", choices=RUN_TOPOLOGIES, default=None,
                    help="mesh: peers on direct links, the router only where they meet; routed: every "
                         f"message through the router; auto: mesh up to {MESH_MAX_ROBOTS} robots unless a process "
                         "is to be frozen (default: "

@@ -114,8 +114,7 @@ class RoleProcess:
         sys.setswitchinterval(float(os.environ.get("FXSWARM_SWITCH_INTERVAL", "0.0005")))
         who = f"fxswarm {role}" + (f" {ident}" if role == "agent" else "")  # in what it says
         try:
-            swarm, options = options_from_args(args, scenario.raw.get("zenoh"), scenario.source,
-                                               identity(role, ident))  # --secure: its own key, checked
+            swarm, options = options_from_args(args, scenario.zenoh, identity(role, ident))  # --secure: its own key, checked
         except ValueError as exc:
             print(f"{who}: {exc}", file=sys.stderr)
             raise SystemExit(2) from None

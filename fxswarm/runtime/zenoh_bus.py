@@ -36,13 +36,11 @@ import zenoh
 from fxswarm.core import bus as topics
 from fxswarm.core.bus import Counters, Handler
 from fxswarm.core.messages import Clock, Command, Estimate, LeaderState, Message, Sense, WireError, WorldState, decode, encode
+from fxswarm.core.scenario import ZENOH_MODES
 from fxswarm.runtime.numbers import non_negative, positive_int
 from fxswarm.runtime.tls import SECURE_ENV, TlsFiles, checked, load_access, session_rules, tls_endpoints
 
 AliveHandler = Callable[[str, bool], None]  # (``role/id``, up?)
-
-MODES = ("peer", "client", "router")
-TOPOLOGIES = ("auto", "mesh", "routed")  # how `fxswarm run` connects its processes (launcher.py)
 
 
 @dataclass(frozen=True)
@@ -69,8 +67,8 @@ class ZenohOptions:
     access: Path | None = None
 
     def config(self) -> zenoh.Config:
-        if self.mode not in MODES:
-            raise ValueError(f"zenoh mode: expected one of {', '.join(MODES)}, got {self.mode!r}")
+        if self.mode not in ZENOH_MODES:
+            raise ValueError(f"zenoh mode: expected one of {', '.join(ZENOH_MODES)}, got {self.mode!r}")
         conf = zenoh.Config()
         conf.insert_json5("mode", f'"{self.mode}"')
         if self.connect:
@@ -159,7 +157,7 @@ def add_zenoh_arguments(p: argparse.ArgumentParser, default_swarm: str = "defaul
     g.add_argument("--swarm", default=None,
                    help=f"key prefix fxswarm/<swarm>/...: two swarms never cross-talk "
                         f"(default: the scenario's [zenoh] swarm, else {default_swarm!r})")
-    g.add_argument("--mode", choices=MODES, default=None, help="zenoh session mode (default: peer)")
+    g.add_argument("--mode", choices=ZENOH_MODES, default=None, help="zenoh session mode (default: peer)")
     g.add_argument("--connect", action="append", default=None, metavar="ENDPOINT",
                    help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
     g.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
@@ -181,42 +179,17 @@ def add_zenoh_arguments(p: argparse.ArgumentParser, default_swarm: str = "defaul
                         "(default KEYS/access.json)")
 
 
-_ZENOH_FIELDS = {"swarm": str, "mode": str, "connect": list, "listen": list, "multicast": bool, "lease_ms": int,
-                 "topology": str}
-
-
-def zenoh_table(table, source: str = "<scenario>") -> dict:
-    """A scenario's ``[zenoh]`` table, checked; raises ValueError naming the file and field."""
-    if table is None:
-        return {}
-    if not isinstance(table, dict):
-        raise ValueError(f"{source}: zenoh: expected a table")
-    for key, value in table.items():
-        kind = _ZENOH_FIELDS.get(key)
-        if kind is None:
-            raise ValueError(f"{source}: zenoh.{key}: unknown field (expected one of {', '.join(_ZENOH_FIELDS)})")
-        if not isinstance(value, kind) or (kind is int and isinstance(value, bool)) or (
-                kind is list and not all(isinstance(e, str) for e in value)):
-            what = "a list of endpoint strings" if kind is list else f"a {kind.__name__}"
-            raise ValueError(f"{source}: zenoh.{key}: expected {what}, got {value!r}")
-    if "mode" in table and table["mode"] not in MODES:
-        raise ValueError(f"{source}: zenoh.mode: expected one of {', '.join(MODES)}, got {table['mode']!r}")
-    if "topology" in table and table["topology"] not in TOPOLOGIES:
-        raise ValueError(f"{source}: zenoh.topology: expected one of {', '.join(TOPOLOGIES)}, "
-                         f"got {table['topology']!r}")
-    return table
-
-
 def options_from_args(args: argparse.Namespace, table: dict | None = None,
-                      source: str = "<scenario>", identity: str | None = None) -> tuple[str, ZenohOptions]:
-    """(swarm, options) from the command line, falling back to a scenario's ``[zenoh]`` table.
+                      identity: str | None = None) -> tuple[str, ZenohOptions]:
+    """(swarm, options) from the command line, falling back to a scenario's ``[zenoh]`` table
+    (``Scenario.zenoh``, checked when the scenario was read).
 
     With ``--secure KEYS``: ``identity``'s files from KEYS, checked (a
     :class:`~fxswarm.runtime.tls.KeyFileError`, a ValueError, names the file), ``tls/``
     endpoints only, and the process either a client of the router (which enforces the
     swarm's rules) or a mesh peer that enforces them on its own links too (docs/security.md).
     """
-    table = zenoh_table(table, source)
+    table = table or {}
     swarm = args.swarm or table.get("swarm") or "default"
     mode = args.mode or table.get("mode") or "peer"
     connect = tuple(args.connect or table.get("connect") or ())

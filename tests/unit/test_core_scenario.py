@@ -78,11 +78,37 @@ def test_wrong_vector_length_names_file_field_and_count(tmp_path):
         (lambda d: d["formation"].update(amplitude=[0.1, 0]), "formation.amplitude", "3 numbers"),
         (lambda d: d.update(extra={"a": 1}), "extra", "no such field"),
         (lambda d: d["graph"].update(weights=[5.0] * 6), "graph.weights", "weights only with 'edges'"),
+        (lambda d: d.update(logging={"rate": 5}), "logging.rate", "no such field"),
+        (lambda d: d.update(logging={"rate_hz": 0}), "logging.rate_hz", "a number > 0"),
+        (lambda d: d.update(logging={"velocities": "yes"}), "logging.velocities", "true or false"),
+        (lambda d: d.update(logging={"trail_s": -3}), "logging.trail_s", "a number >= 0"),
+        (lambda d: d.update(logging={"stale_ticks": 1.5}), "logging.stale_ticks", "an integer"),
+        (lambda d: d.update(logging={"flush_frames": 0}), "logging.flush_frames", "an integer >= 1"),
+        (lambda d: d.update(logging={"link_health": False}), "logging.link_health", "no such field"),
+        (lambda d: d.update(zenoh={"port": 1}), "zenoh.port", "no such field"),
+        (lambda d: d.update(zenoh={"mode": "mesh"}), "zenoh.mode", "one of 'peer', 'client', 'router'"),
+        (lambda d: d.update(zenoh={"connect": "tcp/a:1"}), "zenoh.connect", "a list of strings"),
+        (lambda d: d.update(zenoh={"multicast": 1}), "zenoh.multicast", "true or false"),
+        (lambda d: d.update(zenoh={"lease_ms": 0}), "zenoh.lease_ms", "an integer >= 1"),
+        (lambda d: d.update(zenoh={"topology": "star"}), "zenoh.topology", "one of 'auto', 'mesh', 'routed'"),
+        (lambda d: d.update(zenoh={"swarm": 7}), "zenoh.swarm", "a string"),
     ],
 )
 def test_each_validation_error_names_its_field(tmp_path, mutate, field, expected):
     msg = error_of(tmp_path, mutate)
     assert f": {field}: expected " in msg and expected in msg, msg
+
+
+def test_the_logging_and_zenoh_tables_are_read_with_the_scenario(tmp_path):
+    """Their consumers (the logger, every process's Zenoh options, `fxswarm run`) take them
+    from the scenario, checked: a wrong key fails at load, before any process starts."""
+    data = paper_data()
+    data["logging"] = {"rate_hz": 5, "velocities": True, "stale_ticks": 0}
+    data["zenoh"] = {"swarm": "lab", "connect": ["tcp/10.0.0.1:7447"], "lease_ms": 2000, "topology": "routed"}
+    sc = load(write(tmp_path, data, "ok.toml"))
+    assert sc.logging == {"rate_hz": 5.0, "velocities": True, "stale_ticks": 0}
+    assert sc.zenoh == data["zenoh"]
+    assert load(PAPER_FAST).logging == {} and load(PAPER_FAST).zenoh == {}
 
 
 def test_explicit_edges_weights_and_their_errors(tmp_path):
