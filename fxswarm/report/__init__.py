@@ -14,6 +14,8 @@ import json
 import sys
 from pathlib import Path
 
+from fxswarm.runtime.numbers import times
+
 FIGURES = ("formation_error.png", "obstacle_distances.png", "trajectories_3d.png", "estimate_error.png")
 SETTLING = "settling_vs_initial_error.png"
 
@@ -24,7 +26,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="also render the Rerun viewer's default blueprint to PNG, headless")
     p.add_argument("--recording", action="store_true",
                    help="also write DIR/recording.rrd from the trajectory when the run has none (fxswarm sim)")
-    p.add_argument("--times", default=None, metavar="T1,T2,...",
+    p.add_argument("--times", type=times, default=None, metavar="T1,T2,...",
                    help="simulation times of the snapshots, s (default: three across the run)")
 
 
@@ -119,11 +121,8 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-def _times(spec: str | None, summary: dict) -> list[float]:
-    if spec:
-        try:
-            return [float(x) for x in spec.split(",") if x.strip()]
-        except ValueError:
-            raise SystemExit(f"fxswarm report: --times {spec!r}: expected comma-separated seconds") from None
+def _times(given: list[float] | None, summary: dict) -> list[float]:
+    if given:
+        return given
     duration = float(summary.get("duration_s", 10.0))
     return [round(duration * f, 2) for f in (0.25, 0.5, 0.98)]

@@ -37,3 +37,17 @@ non_negative = _type(float, 0, math.inf, "a number >= 0")
 positive_int = _type(int, 0, math.inf, "an integer > 0", strict=True)
 non_negative_int = _type(int, 0, math.inf, "an integer >= 0")
 port = _type(int, 1, 65535, "a TCP port in 1..65535")
+
+
+def times(text: str) -> list[float]:
+    """Comma-separated times >= 0, s (``--times 10,20.5``)."""
+    try:
+        values = [non_negative(x) for x in text.split(",") if x.strip()]
+    except argparse.ArgumentTypeError:
+        values = []
+    if not values:
+        raise argparse.ArgumentTypeError(f"expected comma-separated seconds >= 0, got {text!r}")
+    return values
+
+
+times.__name__ = "comma-separated seconds"

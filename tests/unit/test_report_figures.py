@@ -65,3 +65,13 @@ def test_sweep_rows_accepts_both_layouts_and_skips_junk():
 def test_report_names_what_is_missing(tmp_path, capsys):
     assert cli(["report", str(tmp_path)]) == 2
     assert "trajectory.npz: no such file" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("bad", ["abc", ",", "1,-2", "1,nan"])
+def test_report_refuses_bad_snapshot_times_before_it_writes_anything(run_dir, capsys, bad):
+    before = sorted(p.name for p in run_dir.iterdir())
+    with pytest.raises(SystemExit) as exc:
+        cli(["report", str(run_dir), "--snapshot", "--times", bad])
+    assert exc.value.code == 2
+    assert f"--times: expected comma-separated seconds >= 0, got {bad!r}" in capsys.readouterr().err
+    assert sorted(p.name for p in run_dir.iterdir()) == before
