@@ -52,8 +52,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"validity of every certificate, days (default {DEFAULT_DAYS})")
     p.add_argument("--router-name", action="append", default=[], metavar="HOST",
                    help="another DNS name or IP address of the router, put in its certificate (repeatable)")
-    p.add_argument("--force", action="store_true", help="overwrite keys already in OUT (a new CA: all change)")
-    p.add_argument("--add", action="store_true",
+    which = p.add_mutually_exclusive_group()  # a new CA, or the old one kept: not both
+    which.add_argument("--force", action="store_true", help="overwrite keys already in OUT (a new CA: all change)")
+    which.add_argument("--add", action="store_true",
                    help="keep OUT's CA and existing keys; make only the missing ones (a robot added to "
                         "the scenario) and rewrite access.json")
 

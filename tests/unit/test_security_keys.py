@@ -17,6 +17,7 @@ import pytest
 from cryptography import x509
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
+from fxswarm.cli import main as fxswarm_main
 from fxswarm.core.scenario import load
 from fxswarm.launch.compose import compose_file
 from fxswarm.runtime.tls import KeyFileError, check, checked, common_name, files_for
@@ -74,6 +75,14 @@ def test_adding_a_robot_keeps_the_ca_and_the_other_keys(tmp_path, sc):
     assert write_keys(out, sc, add=True) == ["agent-6"]
     assert (out / "agent-1.pem").read_bytes() == before
     check(files_for(out, "agent-6"))
+
+
+def test_force_and_add_together_are_refused_before_any_key_is_written(tmp_path, capsys):
+    """--force makes a new CA, --add keeps the old one: given both, --add used to win silently."""
+    with pytest.raises(SystemExit) as exc:
+        fxswarm_main(["keys", str(tmp_path / "k"), str(SCENARIO), "--force", "--add"])
+    assert exc.value.code == 2 and "not allowed with argument --force" in capsys.readouterr().err
+    assert not (tmp_path / "k").exists()
 
 
 def _bad(tmp_path: Path, keys: Path, how: str) -> tuple[Path, Path]:
