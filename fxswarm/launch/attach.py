@@ -56,6 +56,9 @@ SCENARIO_KEY = topics.SCENARIO  # under the swarm's prefix: the scenario file's 
 IDENTITY = "observer"
 PROGRESS_EVERY_S = 2.0
 SETTLE_S = 1.0  # after run/over: states still in flight
+#: The world's token gone without run/over (killed, frozen or cut off past its lease): the run
+#: cannot go on (the world is the simulation). Its run/over may still be on the way: wait this long.
+WORLD_GONE_S = 3.0
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -69,7 +72,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="Rerun outputs as `fxswarm logger --rerun` takes them (default file: DIR/recording.rrd); "
                         "none: no recording")
     p.add_argument("--timeout", type=float, default=600.0, metavar="S",
-                   help="give up after S s without the router, the scenario or the end of the run (default 600)")
+                   help="give up after S s without the router, the scenario or a first state from the world "
+                        "(default 600); once the run is seen, attach stays to its end, or writes what it has "
+                        "when the world leaves without ending it")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.add_argument("--secure", default=os.environ.get(SECURE_ENV) or None, metavar="KEYS",
                    help=f"secure swarm: keys folder of `fxswarm keys` (this uses its {IDENTITY}.pem/.key and "
@@ -138,6 +143,10 @@ class Observer:
             if n:
                 out[name] = n
         return out
+
+    def world_gone(self) -> bool:
+        """The world was seen and its liveliness token is gone, and it has not ended the run."""
+        return "world/0" in self.ever and "world/0" not in self.alive and not self.run_over
 
     def on_run_over(self, _topic: str, up: bool) -> None:
         if up:
@@ -266,12 +275,18 @@ def main(args: argparse.Namespace) -> int:
         started = time.monotonic()
         said = 0.0
         settle_until = None
+        world_gone_since = None
         while stop["signal"] is None:
             bus.poll(0.1)
             now = time.monotonic()
             if obs.run_over and settle_until is None:
                 settle_until = now + SETTLE_S
             if settle_until is not None and now >= settle_until:
+                break
+            world_gone_since = (world_gone_since or now) if obs.world_gone() else None
+            if world_gone_since is not None and now - world_gone_since >= WORLD_GONE_S:
+                print(f"fxswarm attach: the world left at t = {obs.last_t:.2f} s without ending the run; "
+                      "writing what it sent", file=sys.stderr)
                 break
             if obs.last_tick < 0 and now > deadline:
                 print(f"fxswarm attach: no state from the world of swarm {args.swarm!r} in {args.timeout:g} s",

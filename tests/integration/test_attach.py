@@ -9,6 +9,7 @@ from a stack's router on another host.
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 import uuid
@@ -77,3 +78,30 @@ def test_attach_writes_the_same_trajectory_and_figures_as_the_world(tmp_path):
     assert mine["complete"] and mine["states_missed"] == 0 and mine["restarts"] == {}
     assert mine["logger"] == {"seen": False, "died": False, "alive_at_end": False}
     assert (seen / "recording.rrd").stat().st_size > 100_000
+
+
+def test_attach_writes_what_it_saw_when_the_world_dies_mid_run(launch_swarm, tmp_path):
+    """The world is the simulation: once it is killed the run cannot end, and attach used to wait
+    for run/over until its --timeout (600 s by default) and then return with nothing written.
+    Now, once the world's token is gone, it writes the ticks it saw and says the run is incomplete."""
+    swarm = launch_swarm(SCENARIO, clock="realtime", speed=1.0, topology="routed")
+    log = tmp_path / "attach.log"
+    attach = fxswarm("attach", swarm.swarm.endpoint, "--swarm", swarm.swarm.swarm, "--out", str(tmp_path / "seen"),
+                     "--config", str(SCENARIO), "--rerun", "none", log=log)
+    try:
+        def attach_saw_states() -> bool:  # its progress lines: "t =   2.26 / 40 s, ..."
+            return any(float(t) > 0 for t in re.findall(r"t = +([\d.]+) /", log.read_text()))
+
+        seen = swarm.wait_for(attach_saw_states, "attach to report the run under way", timeout=60)
+        swarm.kill("world")
+        code = attach.wait(60)
+    finally:
+        if attach.poll() is None:
+            attach.kill()
+            attach.wait()
+    said = log.read_text()
+    assert code == 1, said
+    assert "the world left at t = " in said and "without ending the run" in said, said
+    summary = json.loads((tmp_path / "seen" / "summary.json").read_text())
+    assert not summary["complete"] and 0 < summary["ticks"] < 4000, summary
+    print(f"world killed at t = {seen:.2f} s; attach wrote {summary['ticks']} ticks")
