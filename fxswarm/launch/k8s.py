@@ -63,7 +63,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="swarm name: key-expression prefix and name prefix of every object (default: the "
                         "scenario's name; letters, digits and '-')")
     p.add_argument("--tag", default="latest", help="tag of the fxswarm-<role> images (default latest)")
-    p.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep")
+    p.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep",
+                   help="the world's clock: lockstep (bit-identical to `fxswarm sim`) or realtime (default lockstep)")
     p.add_argument("--wait-for", action="append", default=None, metavar="ROLE/ID",
                    help="what the world waits for besides the leader and agents (default logger/0)")
     p.add_argument("--kustomize", action="store_true",

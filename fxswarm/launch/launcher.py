@@ -553,7 +553,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--clock", choices=CLOCKS, default="lockstep",
                    help="lockstep (bit-identical to `fxswarm sim`) or realtime")
     p.add_argument("--speed", type=positive, default=1.0, help="real time: simulation seconds per wall second")
-    p.add_argument("--swarm", default=None, help="key prefix (default: <scenario name>-<launcher pid>)")
+    p.add_argument("--swarm", default=None,
+                   help="key prefix (default: the scenario's [zenoh] swarm, else <scenario name>-<launcher pid>)")
     p.add_argument("--port", type=port, default=None, help="router port on 127.0.0.1 (default: a free one)")
     p.add_argument("--tick-timeout", type=positive, default=1.0, metavar="S",
                    help="lock-step: a tick waits at most S s for its commands (default 1)")
@@ -578,9 +579,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("secure mode (docs/security.md)")
     g.add_argument("--secure", default=None, metavar="KEYS",
                    help="keys folder from `fxswarm keys KEYS CONFIG`: mutual TLS on every link (tls/127.0.0.1:PORT, "
-                        "nothing in plaintext) and per-process rights enforced by the router; routed")
+                        "nothing in plaintext) and per-process rights enforced by the router and, in a mesh, by every "
+                        "peer on its own links; same topology as a plain run")
     g.add_argument("--audit", action="store_true",
-                   help="secure: the router logs each message its rules refuse (logs/router.log)")
+                   help="secure: the router logs each message its rules refuse (logs/router.log); makes the run routed")
 
 
 def _progress(swarm: Swarm, t0: float, stream=sys.stderr) -> None:
