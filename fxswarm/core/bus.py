@@ -52,6 +52,16 @@ def prefix(swarm: str) -> str:
     return f"fxswarm/{swarm}"
 
 
+#: What a swarm name must be, said to a user who gave another.
+SWARM_NAME_RULE = "not empty, without / * $ ? or #"
+
+
+def is_swarm_name(name: str) -> bool:
+    """Whether ``name`` can name a swarm: it is one chunk of every key expression
+    (``fxswarm/<swarm>/...``), so Zenoh's separator and wildcards cannot be in it."""
+    return bool(name) and not any(c in name for c in "/*$?#")
+
+
 def matches(pattern: str, topic: str) -> bool:
     """Whether ``topic`` matches ``pattern`` (``*``: one chunk, ``**``: zero or more)."""
     return _match(pattern.split("/"), topic.split("/"))

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from fxswarm.core import motion
+from fxswarm.core.bus import SWARM_NAME_RULE, is_swarm_name
 from fxswarm.core.control import BehaviourGains, EstimatorGains
 from fxswarm.core.observer import DEFAULT_OBSERVER_GAINS, OBSERVER_GRAPHS, TRACKINGS, max_acceleration_inf
 from fxswarm.core.graph import TOPOLOGIES, adjacency, h_matrix, topology_edges, unreached_robots
@@ -382,6 +383,10 @@ def _zenoh(zf: _Fields) -> dict:
             out[key] = zf.boolean(key)
         elif key == "lease_ms":
             out[key] = zf.integer(key, 0, minimum=1)
+        elif key == "swarm":
+            out[key] = zf.string(key)
+            if not is_swarm_name(out[key]):
+                zf.fail(key, f"a swarm name ({SWARM_NAME_RULE})", out[key])
         else:
             out[key] = zf.string(key, choices={"mode": ZENOH_MODES, "topology": RUN_TOPOLOGIES}.get(key))
     return out
@@ -395,6 +400,8 @@ def parse(data: dict, source: str = "<scenario>") -> Scenario:
     sc = top.table_at("scenario", required=True)
     sc.check_known({"name", "duration", "dt", "seed", "settle_tolerance", "d", "v_max"})
     name = sc.string("name", FilePath(source).stem)
+    if not is_swarm_name(name):  # it names the run's folder and, by default, its swarm
+        sc.fail("name", f"a name for the run folder and the swarm ({SWARM_NAME_RULE})", name)
     duration = sc.number("duration", positive=True)
     dt = sc.number("dt", positive=True)
     if dt > duration:

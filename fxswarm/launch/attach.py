@@ -46,6 +46,7 @@ from fxswarm.core import bus as topics
 from fxswarm.core.messages import WorldState
 from fxswarm.core.metrics import summarise
 from fxswarm.core.scenario import Scenario
+from fxswarm.runtime.numbers import swarm_name
 from fxswarm.runtime.output import prepare_run_folder, write_run
 from fxswarm.runtime.tls import SECURE_ENV, checked
 from fxswarm.runtime.zenoh_bus import ConnectError, ZenohBus, ZenohOptions
@@ -63,7 +64,7 @@ WORLD_GONE_S = 3.0
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("endpoint", help="the swarm's router, e.g. tcp/127.0.0.1:7447")
-    p.add_argument("--swarm", required=True, help="swarm name (the key-expression prefix)")
+    p.add_argument("--swarm", type=swarm_name, required=True, help="swarm name (the key-expression prefix)")
     p.add_argument("--out", required=True, metavar="DIR", help="run folder to write here")
     p.add_argument("--config", default=None, help="scenario file (default: ask the router for it)")
     p.add_argument("--name", default="observer/0", metavar="ROLE/ID",

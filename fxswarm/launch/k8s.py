@@ -54,12 +54,13 @@ from fxswarm.faults.plan import FAULTS_ENV, PLAN_ENV, FaultPlan, dumps, plan_of
 from fxswarm.launch.compose import (IN_CONTAINER_RUNS, IN_CONTAINER_SCENARIO, ROUTER_PORT, SECRETS_DIR, USER_ID,
                                     add_fault_and_secure_arguments, image)
 from fxswarm.launch.stack import AGENT_KEYS_DIR, WAIT_TIMEOUT_S, check_ids, checked_keys, dump_yaml, header
+from fxswarm.runtime.numbers import swarm_name
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", help="scenario file (TOML)")
     p.add_argument("--out", required=True, metavar="DIR", help="folder to write the manifests into")
-    p.add_argument("--swarm", default=None,
+    p.add_argument("--swarm", type=swarm_name, default=None,
                    help="swarm name: key-expression prefix and name prefix of every object (default: the "
                         "scenario's name; letters, digits and '-')")
     p.add_argument("--tag", default="latest", help="tag of the fxswarm-<role> images (default latest)")

@@ -41,7 +41,7 @@ from fxswarm.faults.plan import CLI_HELP as FAULT_HELP
 from fxswarm.faults.plan import FaultPlan, dumps, plan_of, resolve
 from fxswarm.faults.process import ProcessSchedule
 from fxswarm.faults.summary import add_processes
-from fxswarm.runtime.numbers import non_negative_int, port, positive, positive_int
+from fxswarm.runtime.numbers import non_negative_int, port, positive, positive_int, swarm_name
 from fxswarm.runtime.output import prepare_run_folder, read_process_counters, write_summary
 from fxswarm.runtime.process import CLOCKS, PARENT_ENV
 from fxswarm.runtime.config import load_or_exit, plan_or_exit
@@ -553,7 +553,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--clock", choices=CLOCKS, default="lockstep",
                    help="lockstep (bit-identical to `fxswarm sim`) or realtime")
     p.add_argument("--speed", type=positive, default=1.0, help="real time: simulation seconds per wall second")
-    p.add_argument("--swarm", default=None,
+    p.add_argument("--swarm", type=swarm_name, default=None,
                    help="key prefix (default: the scenario's [zenoh] swarm, else <scenario name>-<launcher pid>)")
     p.add_argument("--port", type=port, default=None, help="router port on 127.0.0.1 (default: a free one)")
     p.add_argument("--tick-timeout", type=positive, default=1.0, metavar="S",

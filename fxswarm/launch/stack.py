@@ -56,6 +56,7 @@ from fxswarm.core.scenario import Scenario
 from fxswarm.faults.plan import FAULTS_ENV, PLAN_ENV, FaultPlan, dumps, plan_of
 from fxswarm.launch.compose import (HEALTH_INTERVAL_S, IMAGES, IN_CONTAINER_RUNS, IN_CONTAINER_SCENARIO, ROUTER_PORT,
                                     SECRETS_DIR, USER_ID, add_fault_and_secure_arguments, image, relative_path, var)
+from fxswarm.runtime.numbers import swarm_name
 
 NETWORK = "fxswarm"
 #: The world waits this long for everyone: many tasks starting on a few cores take minutes.
@@ -68,7 +69,7 @@ AGENT_KEYS_DIR = "/run/fxswarm-keys"
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", help="scenario file (TOML)")
     p.add_argument("--out", required=True, metavar="DIR", help="folder to write stack.yml and scenario.toml into")
-    p.add_argument("--swarm", default=None,
+    p.add_argument("--swarm", type=swarm_name, default=None,
                    help="swarm name, the key-expression prefix (default: the scenario's name); two stacks "
                         "with different names share a cluster without cross-talk")
     p.add_argument("--wait-for", action="append", default=None, metavar="ROLE/ID",

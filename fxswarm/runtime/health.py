@@ -23,7 +23,7 @@ import argparse
 import os
 import sys
 
-from fxswarm.runtime.numbers import positive
+from fxswarm.runtime.numbers import positive, swarm_name
 
 ROLES = ("router", "world", "leader", "agent", "logger")
 DEFAULT_CONNECT = "tcp/router:7447"
@@ -32,7 +32,7 @@ DEFAULT_CONNECT = "tcp/router:7447"
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("role", choices=ROLES, help="the role whose liveliness token to ask for")
     p.add_argument("id", nargs="?", default="0", help="robot id for an agent (default 0: the only one)")
-    p.add_argument("--swarm", default=os.environ.get("FXSWARM_SWARM", "default"),
+    p.add_argument("--swarm", type=swarm_name, default=os.environ.get("FXSWARM_SWARM", "default"),
                    help="swarm name (default: $FXSWARM_SWARM, else 'default')")
     p.add_argument("--connect", default=os.environ.get("FXSWARM_CONNECT", DEFAULT_CONNECT), metavar="ENDPOINT",
                    help=f"router to ask (default: $FXSWARM_CONNECT, else {DEFAULT_CONNECT})")

@@ -1,5 +1,5 @@
-"""Argument types for the command line's numbers: a value out of range is refused by argparse,
-in one line naming the option, with exit status 2, before any process starts.
+"""Argument types for the command line's numbers (and swarm names): a value out of range is
+refused by argparse, in one line naming the option, with exit status 2, before any process starts.
 
 ``fxswarm run --speed 0`` used to start every process and let each one die with a traceback;
 ``--tick-timeout 0`` ran a whole lock-step run on missed ticks and exited 0.
@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 import math
 from typing import Callable
+
+from fxswarm.core.bus import SWARM_NAME_RULE, is_swarm_name
 
 
 def _type(kind: type, low: float, high: float, what: str, strict: bool = False) -> Callable[[str], int | float]:
@@ -51,3 +53,13 @@ def times(text: str) -> list[float]:
 
 
 times.__name__ = "comma-separated seconds"
+
+
+def swarm_name(text: str) -> str:
+    """A swarm name (``--swarm``): one key-expression chunk (:func:`fxswarm.core.bus.is_swarm_name`)."""
+    if not is_swarm_name(text):
+        raise argparse.ArgumentTypeError(f"expected a swarm name ({SWARM_NAME_RULE}), got {text!r}")
+    return text
+
+
+swarm_name.__name__ = "swarm name"

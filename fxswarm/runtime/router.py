@@ -30,6 +30,7 @@ from pathlib import Path
 import zenoh
 
 from fxswarm.core.bus import SCENARIO, alive_topic, prefix
+from fxswarm.runtime.numbers import swarm_name
 from fxswarm.runtime.process import PARENT_ENV
 from fxswarm.runtime.tls import SECURE_ENV, KeyFileError, TlsFiles, checked, load_access, tls_endpoints
 
@@ -41,7 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
                    help=f"endpoint to listen on (repeatable; default {DEFAULT_LISTEN}, "
                         f"with --secure {DEFAULT_SECURE_LISTEN})")
-    p.add_argument("--swarm", default="default", help="swarm whose alive/router/0 token this router declares")
+    p.add_argument("--swarm", type=swarm_name, default="default", help="swarm whose alive/router/0 token this router declares")
     p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
                    help="another router to mesh with (repeatable): one router per host, each connected to "
                         "the others, every process a client of its own host's router (docs/deploy.md)")

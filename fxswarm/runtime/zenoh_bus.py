@@ -37,7 +37,7 @@ from fxswarm.core import bus as topics
 from fxswarm.core.bus import Counters, Handler
 from fxswarm.core.messages import Clock, Command, Estimate, LeaderState, Message, Sense, WireError, WorldState, decode, encode
 from fxswarm.core.scenario import ZENOH_MODES
-from fxswarm.runtime.numbers import non_negative, positive_int
+from fxswarm.runtime.numbers import non_negative, positive_int, swarm_name
 from fxswarm.runtime.tls import SECURE_ENV, TlsFiles, checked, load_access, session_rules, tls_endpoints
 
 AliveHandler = Callable[[str, bool], None]  # (``role/id``, up?)
@@ -154,7 +154,7 @@ def open_session(options: ZenohOptions, who: str = "fxswarm",
 def add_zenoh_arguments(p: argparse.ArgumentParser, default_swarm: str = "default") -> None:
     """The options every process shares: swarm name and how to join Zenoh."""
     g = p.add_argument_group("zenoh")
-    g.add_argument("--swarm", default=None,
+    g.add_argument("--swarm", type=swarm_name, default=None,
                    help=f"key prefix fxswarm/<swarm>/...: two swarms never cross-talk "
                         f"(default: the scenario's [zenoh] swarm, else {default_swarm!r})")
     g.add_argument("--mode", choices=ZENOH_MODES, default=None, help="zenoh session mode (default: peer)")

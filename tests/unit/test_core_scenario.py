@@ -92,6 +92,9 @@ def test_wrong_vector_length_names_file_field_and_count(tmp_path):
         (lambda d: d.update(zenoh={"lease_ms": 0}), "zenoh.lease_ms", "an integer >= 1"),
         (lambda d: d.update(zenoh={"topology": "star"}), "zenoh.topology", "one of 'auto', 'mesh', 'routed'"),
         (lambda d: d.update(zenoh={"swarm": 7}), "zenoh.swarm", "a string"),
+        (lambda d: d.update(zenoh={"swarm": "lab/1"}), "zenoh.swarm", "a swarm name (not empty, without / * $ ? or #)"),
+        (lambda d: d["scenario"].update(name="run*"), "scenario.name", "a name for the run folder and the swarm"),
+        (lambda d: d["scenario"].update(name=""), "scenario.name", "not empty"),
     ],
 )
 def test_each_validation_error_names_its_field(tmp_path, mutate, field, expected):

@@ -107,3 +107,21 @@ def test_a_command_carries_its_estimate_exactly_and_all_or_nothing_of_it():
     for bad in ({"est_t": float("nan")}, {"est_tick": -1}, {"est_ph": [1.0, 2.0]}):
         with pytest.raises(WireError):
             decode(msgpack.packb({**raw, **bad}))
+
+
+@pytest.mark.parametrize("command", [
+    ["run", str(PAPER_FAST)], ["world", str(PAPER_FAST)], ["agent", str(PAPER_FAST), "--id", "1"],
+    ["router"], ["health", "world"], ["attach", "tcp/127.0.0.1:7447", "--out", "OUT"],
+    ["stack", str(PAPER_FAST), "--out", "OUT"], ["k8s", str(PAPER_FAST), "--out", "OUT"],
+])
+@pytest.mark.parametrize("bad", ["x*y", "a/b", "", "q?"])
+def test_every_command_refuses_a_swarm_name_that_is_not_one_key_chunk(command, bad, capsys, tmp_path):
+    """The swarm name is one chunk of every key expression: `fxswarm run --swarm 'x*y'` used to
+    start every process and die in a Zenoh traceback (invalid key expression)."""
+    from fxswarm.cli import main as fxswarm_main
+
+    with pytest.raises(SystemExit) as exc:
+        fxswarm_main([*(str(tmp_path / "out") if a == "OUT" else a for a in command), "--swarm", bad])
+    assert exc.value.code == 2
+    assert f"argument --swarm: expected a swarm name (not empty, without / * $ ? or #), got {bad!r}" \
+        in capsys.readouterr().err
