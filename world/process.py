@@ -19,6 +19,7 @@ At the end it writes ``trajectory.npz`` and ``summary.json`` (the same as
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import time
 
@@ -171,8 +172,9 @@ def main(args: argparse.Namespace) -> int:
                                      processes=processes)
 
             summary_of = summarise
-        if not world.done:
-            code = 1 if proc.stop_reason not in ("SIGTERM", "SIGINT") else 0
+        if not world.done:  # a run cut short is not a success: stopped by a signal, say which (128 + n)
+            signalled = proc.stop_reason in ("SIGTERM", "SIGINT")
+            code = 128 + signal.Signals[proc.stop_reason].value if signalled else 1
     except BaseException:
         crashed = True
         raise

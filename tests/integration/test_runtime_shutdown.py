@@ -143,6 +143,8 @@ def test_a_frozen_agent_costs_missed_ticks_never_a_deadlock_and_a_restart_rejoin
     swarm.step(20, timeout=60)
     how = swarm.stop()  # SIGTERM: the world writes its (incomplete) summary, everyone their counters
     assert how["world"] == "SIGTERM" and how["agent-5"] == "SIGTERM"
+    # A run cut short is no success: `docker compose up --exit-code-from world` must not say 0.
+    assert swarm.pid("world") and swarm.swarm.children["world"].popen.returncode == 128 + 15
     summary = swarm.summary()
     counters = swarm.swarm.process_counters()
     assert not summary["complete"] and summary["missed_ticks"] >= 5
