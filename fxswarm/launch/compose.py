@@ -195,6 +195,9 @@ def services(scenario: Scenario, scenario_path: str, context: str, plan: FaultPl
             "command": ["router", "--listen", f"{scheme}/0.0.0.0:{ROUTER_PORT}", "--swarm", swarm],
             "environment": dict(environment),
             "ports": [f"{var('FXSWARM_ROUTER_PUBLISH', f'127.0.0.1:{ROUTER_PORT}')}:{ROUTER_PORT}"],
+            # Writes nothing there, but its image declares the volume: unmounted, every `up` would
+            # leave an anonymous volume behind.
+            "volumes": [f"./runs:{IN_CONTAINER_RUNS}"],
             "healthcheck": health("router", 0),
         }),
         "logger": with_image("logger", "logger", role("logger", 0, ["--rerun", var("FXSWARM_RERUN", "file")],

@@ -135,8 +135,9 @@ def stack_document(sc: Scenario, swarm: str, wait_for: list[str], plan: FaultPla
             },
         }
         out["configs"] = [{"source": "scenario", "target": IN_CONTAINER_SCENARIO, "mode": 0o444}]
-        if role != "router":
-            out["volumes"] = [{"type": "volume", "source": "runs", "target": IN_CONTAINER_RUNS}]
+        # The router too: the images declare the volume, and a task without it mounted leaves an
+        # anonymous volume on its node each time it starts.
+        out["volumes"] = [{"type": "volume", "source": "runs", "target": IN_CONTAINER_RUNS}]
         return out
 
     router = service("router", ["router", "--listen", f"{scheme}/0.0.0.0:{ROUTER_PORT}", "--swarm", swarm,

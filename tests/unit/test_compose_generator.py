@@ -51,6 +51,8 @@ def test_one_service_per_process_all_clients_of_the_router():
         assert "agent-1" in doc[f"agent-{i}"]["depends_on"]
     assert "router" in doc["world"]["depends_on"]
     assert all(doc[s]["user"] == "${FXSWARM_USER:-fxswarm}" for s in doc), "never root by default"
+    # Every image declares the volume: a service without it mounted leaves an anonymous one at each `up`.
+    assert all("./runs:/app/runs" in doc[s]["volumes"] for s in doc)
     for name, svc in doc.items():
         if name == "router":
             continue

@@ -96,6 +96,8 @@ def test_stack_file_one_scaled_agent_service_dnsrr_everywhere(tmp_path, name):
     assert agent["deploy"]["replicas"] == robots and agent["environment"]["FXSWARM_ID"] == "{{.Task.Slot}}"
     assert agent["deploy"]["restart_policy"]["condition"] == "on-failure", "a killed agent comes back"
     assert all(s["deploy"]["endpoint_mode"] == "dnsrr" for s in services.values())
+    # Every image declares the volume: a task without it mounted leaves an anonymous one on its node.
+    assert all({"type": "volume", "source": "runs", "target": "/app/runs"} in s["volumes"] for s in services.values())
     assert all("fxswarm health" in " ".join(s["healthcheck"]["test"]) or s["healthcheck"]["test"][1:4] ==
                ["fxswarm", "health", role] for role, s in services.items())
     # Swarm puts a task in its service's DNS only once healthy: the router must not ask `router`.
