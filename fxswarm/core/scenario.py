@@ -227,8 +227,9 @@ def _describe(value: Any) -> str:
         return value  # a count, already phrased by the caller
     if isinstance(value, dict):
         return "a table"
-    if isinstance(value, list):
-        return f"a list of {len(value)}"
+    if isinstance(value, list):  # short enough to show: the wrong id is in it
+        text = repr(value)
+        return text if len(text) <= 60 else f"a list of {len(value)}"
     return repr(value)
 
 
@@ -540,6 +541,8 @@ def load(path: str | FilePath) -> Scenario:
             data = tomllib.load(fh)
     except FileNotFoundError:
         raise ScenarioError(f"{source}: no such scenario file") from None
+    except OSError as exc:  # a folder, no permission, ...
+        raise ScenarioError(f"{source}: cannot read the scenario file: {exc.strerror}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{source}: not valid TOML: {exc}") from None
     return parse(data, source)

@@ -69,7 +69,7 @@ def test_wrong_vector_length_names_file_field_and_count(tmp_path):
         (lambda d: d["graph"].update(topology="torus"), "graph.topology", "one of 'ring'"),
         (lambda d: d["graph"].update(edges=[[1, 2]]), "graph.topology", "exactly one of"),
         (lambda d: d["graph"].update(pinned=[]), "graph.pinned", "at least one robot that hears the leader"),
-        (lambda d: d["graph"].update(pinned=[9]), "graph.pinned", "robot ids in 1..6"),
+        (lambda d: d["graph"].update(pinned=[9]), "graph.pinned", "robot ids in 1..6, got [9]"),
         (lambda d: d["leader"].update(kind="spiral"), "leader.kind", "one of 'static'"),
         (lambda d: d["leader"].pop("radius"), "leader.radius", "a number"),
         (lambda d: d["obstacles"][2].update(position=[0, "a", 1]), "obstacles[2].position", "3 finite numbers"),
@@ -180,3 +180,5 @@ def test_missing_and_unparsable_files(tmp_path):
     bad.write_text("[scenario\nname=")
     with pytest.raises(ScenarioError, match=r"bad.toml: not valid TOML"):
         load(bad)
+    with pytest.raises(ScenarioError, match=f"{tmp_path}: cannot read the scenario file: Is a directory"):
+        load(tmp_path)
