@@ -80,8 +80,9 @@ def _read(path: Path, what: str) -> bytes:
 def _cert(path: Path, what: str):
     from cryptography import x509
 
+    data = _read(path, what)  # outside the try: its KeyFileError is a ValueError too
     try:
-        return x509.load_pem_x509_certificate(_read(path, what))
+        return x509.load_pem_x509_certificate(data)
     except ValueError as exc:
         raise KeyFileError(f"{path}: not a PEM certificate ({what}): {exc}") from None
 
@@ -135,8 +136,9 @@ def check(files: TlsFiles, now: _dt.datetime | None = None):
     cn = common_name(cert)
     if cn != files.name:
         raise KeyFileError(f"{files.cert}: its common name is {cn!r}, expected {files.name!r}")
+    data = _read(files.key, f"{files.name}'s private key")  # outside the try: its KeyFileError is a ValueError
     try:
-        key = serialization.load_pem_private_key(_read(files.key, f"{files.name}'s private key"), password=None)
+        key = serialization.load_pem_private_key(data, password=None)
     except (ValueError, TypeError) as exc:
         raise KeyFileError(f"{files.key}: not an unencrypted PEM private key: {exc}") from None
     same = serialization.PublicFormat.SubjectPublicKeyInfo

@@ -92,6 +92,9 @@ def _bad(tmp_path: Path, keys: Path, how: str) -> tuple[Path, Path]:
     if how == "missing":
         (folder / "agent-3.key").unlink()
         return folder, folder / "agent-3.key"
+    if how == "missing-cert":
+        (folder / "agent-3.pem").unlink()
+        return folder, folder / "agent-3.pem"
     if how == "unreadable":  # a folder in place of the file: unreadable even by root
         (folder / "agent-3.pem").unlink()
         (folder / "agent-3.pem").mkdir()
@@ -114,7 +117,7 @@ def _bad(tmp_path: Path, keys: Path, how: str) -> tuple[Path, Path]:
     raise ValueError(how)
 
 
-@pytest.mark.parametrize("how,says", [("missing", "missing"), ("unreadable", "cannot read"),
+@pytest.mark.parametrize("how,says", [("missing", "missing"), ("missing-cert", "missing"), ("unreadable", "cannot read"),
                                       ("expired", "expired"), ("wrong-ca", "does not verify"),
                                       ("wrong-key", "does not belong")])
 def test_a_bad_key_file_is_named_and_nothing_starts(tmp_path, keys, how, says):
@@ -122,6 +125,7 @@ def test_a_bad_key_file_is_named_and_nothing_starts(tmp_path, keys, how, says):
     with pytest.raises(KeyFileError, match=says) as err:
         checked(folder, "agent-3")
     assert str(named) in str(err.value)
+    assert "not a PEM" not in str(err.value) and "not an unencrypted" not in str(err.value), err.value  # not its format
     out = tmp_path / "run"
     r = fxswarm("run", str(SCENARIO), "--secure", str(folder), "--out", str(out), "--quiet")
     assert r.returncode == 2, r.stderr
