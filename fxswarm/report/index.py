@@ -50,7 +50,7 @@ def write_index(run: Path, summary: dict, figures: list[Path], snapshots: list[P
             lines.append(f"| {label} | {_fmt(summary[key], form)} |")
     bounds = summary.get("fixed_time_bounds_s") or {}
     for name, value in bounds.items():
-        note = " (as printed in the paper; suspect, see SPEC section 6)" if name == "estimator" else ""
+        note = " (as printed in the paper; suspect: docs/design.md, 'The estimator bound')" if name == "estimator" else ""
         lines.append(f"| fixed-time bound, {name} | {_fmt(value, '{:.2f} s')}{note} |")
     logger = (summary.get("processes") or {}).get("logger-0", {}).get("logger")
     if logger:

@@ -254,7 +254,7 @@ def sweep_document(base: Scenario, config: str, rows: list[dict], settings: dict
             "formation_fixed_time_s": _finite(fixed_time_bound(base.formation)),
             "formation_limit_s": _finite(settling_time_limit(base.formation)),
             "estimator_printed_s": _finite(estimator_bound_printed(base.H, base.estimator)),
-            "estimator_printed_note": "the paper's printed T_E; suspect (SPEC section 6): reported, never asserted",
+            "estimator_printed_note": "the paper's printed T_E; suspect (docs/design.md, 'The estimator bound'): reported, never asserted",
             "estimator_derived_s": _finite(estimator_bound_derived(base.H, base.estimator)),
             "estimator_derived_note": "fxswarm.core.bounds.estimator_bound_derived: proven for the aggregate "
                                       "power, checked against measurements for pairwise",
