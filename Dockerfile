@@ -4,7 +4,7 @@
 #
 #   docker build -t fxswarm .                                              # base from a registry
 #   docker/build-base-image.sh && \
-#   docker build --build-arg BASE_IMAGE=fxswarm-base:bookworm -t fxswarm .  # no registry at all
+#   docker build --build-arg BASE_IMAGE=fxswarm-base-logger:bookworm -t fxswarm .  # no registry at all
 #
 # BASE_IMAGE is any Debian-like image with Python 3.11. The local one made by
 # docker/build-base-image.sh already holds the dependencies in /opt/venv and sets
