@@ -552,7 +552,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default=None, help="run folder (default: runs/<scenario name>)")
     p.add_argument("--clock", choices=CLOCKS, default="lockstep",
                    help="lockstep (bit-identical to `fxswarm sim`) or realtime")
-    p.add_argument("--speed", type=positive, default=1.0, help="real time: simulation seconds per wall second")
+    p.add_argument("--speed", type=positive, default=None,
+                   help="real time: simulation seconds per wall second (default 1)")
     p.add_argument("--swarm", type=swarm_name, default=None,
                    help="key prefix (default: the scenario's [zenoh] swarm, else <scenario name>-<launcher pid>)")
     p.add_argument("--port", type=port, default=None, help="router port on 127.0.0.1 (default: a free one)")
@@ -607,6 +608,10 @@ def _raise_interrupt(signum, frame) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    given = [f"--{name.replace('_', '-')}" for name in ("speed", "max_lag") if getattr(args, name) is not None]
+    if given and args.clock != "realtime":  # lock-step runs as fast as it can and never lags
+        print(f"fxswarm run: {' and '.join(given)} set real time's pace: add --clock realtime", file=sys.stderr)
+        return 2
     sc = load_or_exit(args.config)
     plan = plan_or_exit(sc, args.fault)  # resolved once here: every child receives this plan
     out = prepare_run_folder(args.out or f"runs/{sc.name}", "fxswarm run")
@@ -627,7 +632,7 @@ def main(args: argparse.Namespace) -> int:
         return 2
     started = time.time()
     try:
-        swarm = Swarm(args.config, out, clock=args.clock, speed=args.speed, swarm=args.swarm, port=args.port,
+        swarm = Swarm(args.config, out, clock=args.clock, speed=args.speed or 1.0, swarm=args.swarm, port=args.port,
                       logger=not args.no_logger, tick_timeout=args.tick_timeout, lease_ms=args.lease_ms,
                       scenario=sc, topology=args.topology, faults=tuple(args.fault or ()), plan=plan,
                       secure=args.secure, audit=args.audit,

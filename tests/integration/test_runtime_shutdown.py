@@ -288,6 +288,10 @@ def test_a_wrong_fault_spec_is_refused_by_the_launcher_and_by_each_role(tmp_path
     (["leader", "--world-timeout", "-1"], "argument --world-timeout: expected a number >= 0, got '-1'"),
     (["sweep", "--workers", "0"], "argument --workers: expected an integer > 0, got '0'"),
     (["logger", "--rate", "0"], "argument --rate: expected a number > 0, got '0'"),
+    # Lock-step runs as fast as it can: a pace given without real time was silently ignored.
+    (["run", "--speed", "2"], "fxswarm run: --speed set real time's pace: add --clock realtime"),
+    (["run", "--clock", "lockstep", "--speed", "1", "--max-lag", "3"],
+     "fxswarm run: --speed and --max-lag set real time's pace: add --clock realtime"),
 ])
 def test_a_number_out_of_range_is_refused_in_one_line_before_anything_starts(tmp_path, command, said):
     """Before, ``run --speed 0`` started every process and each died with a traceback, and
