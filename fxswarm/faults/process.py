@@ -111,7 +111,7 @@ class ProcessSchedule:
 
     faults: tuple[ProcessFault, ...]  # the resolved plan's ``processes``
     _done: set = field(default_factory=set)
-    log: list = field(default_factory=list)  # what run() sent: {action, target, t_s}, for the summary
+    log: list = field(default_factory=list)  # what run() sent: {action, target, t_s, done_t_s}, for the summary
 
     def due(self, t: float) -> list[tuple[str, str]]:
         out = []
@@ -123,8 +123,9 @@ class ProcessSchedule:
                     out.append((when, what, f.target))
         return [(what, target) for _, what, target in sorted(out, key=lambda e: e[0])]  # in time order
 
-    def run(self, swarm) -> list[tuple[str, str]]:
-        """Send what is due to ``swarm`` (a :class:`fxswarm.launch.launcher.Swarm`); return it.
+    def run(self, swarm) -> list[dict]:
+        """Send what is due to ``swarm`` (a :class:`fxswarm.launch.launcher.Swarm`); return it,
+        as the events logged: ``{action, target, t_s, done_t_s}`` (None: no such process).
 
         Process names: ``agent:3`` -> ``agent-3``. A restart waits until the new
         process is alive (it rejoins with a fresh state).
@@ -132,9 +133,11 @@ class ProcessSchedule:
         if not self.faults:
             return []
         now = swarm.sim_time()
-        done = self.due(now)
-        for action, target in done:
-            self.log.append({"action": action, "target": target, "t_s": round(now, 6)})
+        events = []
+        for action, target in self.due(now):
+            event = {"action": action, "target": target, "t_s": round(now, 6), "done_t_s": None}
+            self.log.append(event)
+            events.append(event)
             name = target.replace(":", "-")
             if name not in swarm.children:
                 continue
@@ -146,4 +149,6 @@ class ProcessSchedule:
                 swarm.freeze(name)
             elif action == "thaw":
                 swarm.thaw(name)
-        return done
+            # The world goes on meanwhile: a restarted process is alive again only seconds later.
+            event["done_t_s"] = round(swarm.sim_time(), 6)
+        return events

@@ -46,7 +46,7 @@ def add_processes(summary: dict, processes: dict[str, dict], process_events: lis
     processes: ``"<role>-<id>"`` -> that process's counters file. Their per-link fault counts
     (each process counts its own inbox) are summed into ``faults.links``, replacing the
     in-process counts. process_events: the process faults a launcher sent, ``{action, target,
-    t_s}`` in time order; they become ``faults.process_events`` and, counted, ``faults.restarts``
+    t_s, done_t_s}`` in time order; they become ``faults.process_events`` and, counted, ``faults.restarts``
     (as ``fxswarm sim`` counts its stand-ins' restarts).
     """
     summary["processes"] = processes

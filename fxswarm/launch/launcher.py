@@ -425,7 +425,7 @@ class Swarm:
                 raise TimeoutError(f"{name} still alive after {timeout:g} s")
             self.bus.poll(0.05)
 
-    def run_process_faults(self) -> list[tuple[str, str]]:
+    def run_process_faults(self) -> list[dict]:
         """Send the scenario's process faults (kill, restart, freeze, thaw) whose time has come."""
         if getattr(self, "_process_faults", None) is None:
             self._process_faults = ProcessSchedule(self.plan.processes)
@@ -656,8 +656,10 @@ def main(args: argparse.Namespace) -> int:
         world = swarm.children["world"]
         while True:
             deaths = swarm.poll(0.1)
-            for action, target in swarm.run_process_faults():
-                say(f"\nfxswarm run: fault: {action} {target} at t = {swarm.sim_time():.2f} s")
+            for event in swarm.run_process_faults():
+                done = event["done_t_s"]
+                later = f", done at t = {done:.2f} s" if done is not None and done > event["t_s"] else ""
+                say(f"\nfxswarm run: fault: {event['action']} {event['target']} at t = {event['t_s']:.2f} s{later}")
             for d in deaths:
                 if d.child.role == "agent":
                     agent_deaths.append(d.child.name)

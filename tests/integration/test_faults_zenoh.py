@@ -77,7 +77,9 @@ def test_agent_2_killed_at_10_s_and_restarted_at_12_s_rejoins_and_converges(laun
     assert err[-1, 1] < tol, "robot 2 is not back in formation by the end"
     crash = summary["faults"]["recoveries"][0]
     assert crash["event"] == "kill agent:2" and crash["recovery_s"] is not None
-    assert [e["action"] for e in summary["faults"]["process_events"]] == ["kill", "restart"]
+    events = summary["faults"]["process_events"]
+    assert [e["action"] for e in events] == ["kill", "restart"]
+    assert all(e["done_t_s"] >= e["t_s"] >= at for e, at in zip(events, (10.0, 12.0))), events
     degraded = summary["faults"]["degraded_ticks"]
     assert degraded["world_held_at_zero"]["2"] > 0  # the world stopped the silent robot
     assert degraded["stale_neighbour"]["1"] > 0 and degraded["stale_neighbour"]["3"] > 0

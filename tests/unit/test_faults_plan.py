@@ -206,6 +206,30 @@ def test_process_schedule_fires_each_signal_once_when_its_time_comes():
     assert s.due(12.0) == [("restart", "agent:2")] and s.due(20.0) == []
 
 
+def test_the_schedule_logs_when_each_process_fault_was_sent_and_when_it_took_effect():
+    """A restart returns once the new process is alive, seconds of wall time later; the world
+    went on meanwhile, so the summary's event says both times."""
+
+    class Swarm:  # the launcher's side of it: a clock the world drives, and the signals
+        children = {"agent-2": object()}
+        t = 10.0
+
+        def sim_time(self) -> float:
+            return self.t
+
+        def kill(self, name: str) -> None:
+            pass
+
+        def restart(self, name: str) -> None:
+            self.t += 3.5  # the world went on while the new process started
+
+    s, swarm = ProcessSchedule((ProcessFault("agent:2", "kill", 10.0, 12.0),)), Swarm()
+    assert s.run(swarm) == [{"action": "kill", "target": "agent:2", "t_s": 10.0, "done_t_s": 10.0}]
+    swarm.t = 12.25
+    assert s.run(swarm) == [{"action": "restart", "target": "agent:2", "t_s": 12.25, "done_t_s": 15.75}]
+    assert [e["done_t_s"] for e in s.log] == [10.0, 15.75]
+
+
 def _commands_of(arrival_seed: int | None, ticks: int = 60) -> list[tuple]:
     """Robot 3 behind a lossy, slow, duplicating filter, fed one tick at a time. With a seed, each
     tick's messages arrive shuffled, and each delayed estimate physically arrives at a random
