@@ -46,7 +46,7 @@ from fxswarm.core import bus as topics
 from fxswarm.core.messages import WorldState
 from fxswarm.core.metrics import summarise
 from fxswarm.core.scenario import Scenario
-from fxswarm.runtime.numbers import swarm_name
+from fxswarm.runtime.numbers import positive, swarm_name
 from fxswarm.runtime.output import prepare_run_folder, write_run
 from fxswarm.runtime.tls import SECURE_ENV, checked
 from fxswarm.runtime.zenoh_bus import ConnectError, ZenohBus, ZenohOptions
@@ -72,7 +72,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rerun", default="file", metavar="OUTPUTS",
                    help="Rerun outputs as `fxswarm logger --rerun` takes them (default file: DIR/recording.rrd); "
                         "none: no recording")
-    p.add_argument("--timeout", type=float, default=600.0, metavar="S",
+    p.add_argument("--timeout", type=positive, default=600.0, metavar="S",
                    help="give up after S s without the router, the scenario or a first state from the world "
                         "(default 600); once the run is seen, attach stays to its end, or writes what it has "
                         "when the world leaves without ending it")
@@ -238,14 +238,10 @@ def main(args: argparse.Namespace) -> int:
         print(f"fxswarm attach: --secure: {exc}" if args.secure else f"fxswarm attach: {exc}", file=sys.stderr)
         return 2
     out = prepare_run_folder(args.out, "fxswarm attach")
-    stop = {"signal": None}
-
-    def on_signal(signum, _frame) -> None:
-        stop["signal"] = signal.Signals(signum).name
-
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, on_signal)
     deadline = time.monotonic() + args.timeout
+    # While it waits for the router there is nothing to write: Ctrl-C (KeyboardInterrupt) and
+    # SIGTERM end it between two connect attempts.
+    signal.signal(signal.SIGTERM, lambda signum, _frame: sys.exit(128 + signum))
     try:
         bus = ZenohBus(args.swarm, options, who="fxswarm attach")
     except ConnectError as exc:
@@ -256,6 +252,13 @@ def main(args: argparse.Namespace) -> int:
         else:
             print(exc, file=sys.stderr)
         return 1
+    stop = {"signal": None}
+
+    def on_signal(signum, _frame) -> None:  # from here on, a signal ends the watch and writes what was seen
+        stop["signal"] = signal.Signals(signum).name
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, on_signal)
     recorder = None
     try:
         sc = load_or_exit(args.config or str(fetch_scenario(bus, out, deadline)))

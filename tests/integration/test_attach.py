@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import json
 import re
+import signal
 import subprocess
 import sys
+import time
 import uuid
 from pathlib import Path
 
@@ -105,3 +107,23 @@ def test_attach_writes_what_it_saw_when_the_world_dies_mid_run(launch_swarm, tmp
     summary = json.loads((tmp_path / "seen" / "summary.json").read_text())
     assert not summary["complete"] and 0 < summary["ticks"] < 4000, summary
     print(f"world killed at t = {seen:.2f} s; attach wrote {summary['ticks']} ticks")
+
+
+@pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 128 + 15), (signal.SIGINT, 130)])
+def test_attach_waiting_for_a_router_stops_at_once_on_a_signal(tmp_path, sig, code):
+    """Its handlers only set a flag for the watch loop, and they used to be in place while it
+    waited for the router: a SIGTERM or Ctrl-C then went unheeded until --timeout (600 s)."""
+    log = tmp_path / "attach.log"
+    attach = fxswarm("attach", f"tcp/127.0.0.1:{free_port()}", "--swarm", "nobody", "--out", str(tmp_path / "seen"),
+                     log=log)
+    try:
+        deadline = time.monotonic() + 60
+        while "waiting for the router" not in log.read_text():  # its own line: it is in the wait
+            assert attach.poll() is None and time.monotonic() < deadline, log.read_text()
+            time.sleep(0.05)
+        attach.send_signal(sig)
+        assert attach.wait(10) == code, log.read_text()
+    finally:
+        if attach.poll() is None:
+            attach.kill()
+            attach.wait()

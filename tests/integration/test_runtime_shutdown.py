@@ -288,6 +288,8 @@ def test_a_wrong_fault_spec_is_refused_by_the_launcher_and_by_each_role(tmp_path
     (["leader", "--world-timeout", "-1"], "argument --world-timeout: expected a number >= 0, got '-1'"),
     (["sweep", "--workers", "0"], "argument --workers: expected an integer > 0, got '0'"),
     (["logger", "--rate", "0"], "argument --rate: expected a number > 0, got '0'"),
+    # A negative --timeout became a connect wait with no end.
+    (["attach", "--swarm", "s", "--timeout", "-5"], "argument --timeout: expected a number > 0, got '-5'"),
     # Lock-step runs as fast as it can: a pace given without real time was silently ignored.
     (["run", "--speed", "2"], "fxswarm run: --speed set real time's pace: add --clock realtime"),
     (["run", "--clock", "lockstep", "--speed", "1", "--max-lag", "3"],
