@@ -164,8 +164,8 @@ def services(scenario: Scenario, scenario_path: str, context: str, plan: FaultPl
             body["depends_on"] = depends
         return body
     run = var("FXSWARM_RUN", f"{scenario.name}-compose")
-    volumes = [f"{var('FXSWARM_SCENARIO', scenario_path)}:{IN_CONTAINER_SCENARIO}:ro",
-               f"./runs:{IN_CONTAINER_RUNS}"]
+    runs_volume = f"./runs:{IN_CONTAINER_RUNS}"
+    volumes = [f"{var('FXSWARM_SCENARIO', scenario_path)}:{IN_CONTAINER_SCENARIO}:ro", runs_volume]
     # FXSWARM_FAULTS is passed through only so that a role process can refuse one set at `up`.
     environment = {"FXSWARM_SWARM": swarm, PLAN_ENV: plan_json, FAULTS_ENV: var(FAULTS_ENV, ""),
                    "FXSWARM_CONNECT": f"{scheme}/router:{ROUTER_PORT}"}
@@ -197,7 +197,7 @@ def services(scenario: Scenario, scenario_path: str, context: str, plan: FaultPl
             "ports": [f"{var('FXSWARM_ROUTER_PUBLISH', f'127.0.0.1:{ROUTER_PORT}')}:{ROUTER_PORT}"],
             # Writes nothing there, but its image declares the volume: unmounted, every `up` would
             # leave an anonymous volume behind.
-            "volumes": [f"./runs:{IN_CONTAINER_RUNS}"],
+            "volumes": [runs_volume],
             "healthcheck": health("router", 0),
         }),
         "logger": with_image("logger", "logger", role("logger", 0, ["--rerun", var("FXSWARM_RERUN", "file")],
