@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import socket
+from contextlib import ExitStack
 
 import pytest
 
@@ -16,14 +17,37 @@ def test_plain_web_picks_free_ports_each_time(tmp_path):
     assert all(port_problem(p) is None for p in ports)
 
 
+def _listen(port: int) -> socket.socket:
+    s = socket.socket()
+    try:
+        s.bind(("", port))
+    except OSError:
+        s.close()
+        raise
+    s.listen()
+    return s
+
+
+def _two_consecutive_ports(stack: ExitStack) -> tuple[socket.socket, socket.socket]:
+    """Listen on P and P+1, so no other process on the host can take either while the test runs."""
+    for _ in range(50):
+        low = stack.enter_context(_listen(0))
+        try:
+            return low, stack.enter_context(_listen(low.getsockname()[1] + 1))
+        except OSError:
+            continue
+    raise RuntimeError("found no two consecutive free ports in 50 tries")
+
+
 def test_a_named_port_in_use_is_refused_before_the_run_naming_it(tmp_path):
-    with socket.socket() as taken:
-        taken.bind(("", 0))
-        taken.listen()
+    with ExitStack() as stack:
+        low, taken = _two_consecutive_ports(stack)
         port = taken.getsockname()[1]
+        low.close()  # P-1 is free (we held it), P is in use
         with pytest.raises(OutputError, match=rf"port {port} is in use"):
             parse_outputs(f"web={port}", tmp_path)
         with pytest.raises(OutputError, match=rf"port {port} is in use"):  # PORT+1 is the viewer's
             parse_outputs(f"web={port - 1}", tmp_path)
-    free = parse_outputs(f"web={port}", tmp_path)  # once released, the same spec is taken
-    assert (free.web_port, free.web_viewer_port) == (port, port + 1)
+        taken.close()
+        free = parse_outputs(f"web={port - 1}", tmp_path)  # once released, the same spec is taken
+        assert (free.web_port, free.web_viewer_port) == (port - 1, port)
