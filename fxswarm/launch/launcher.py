@@ -575,7 +575,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "e.g. file,spawn to watch the run live and keep the recording")
     p.add_argument("--fail-fast", action="store_true", help="end the run when any agent dies")
     p.add_argument("--start-timeout", type=positive, default=60.0, help="seconds to wait for every process to be up")
-    p.add_argument("--quiet", action="store_true", help="no progress line")
+    p.add_argument("--quiet", action="store_true", help="no start, fault, progress or summary lines; warnings and errors are still written")
     p.add_argument("--fault", action="append", default=None, metavar="SPEC", help=FAULT_HELP)
     g = p.add_argument_group("secure mode (docs/security.md)")
     g.add_argument("--secure", default=None, metavar="KEYS",
@@ -644,7 +644,11 @@ def main(args: argparse.Namespace) -> int:
     # SIGINT and SIGTERM both stop the run cleanly, even where SIGINT came in ignored (a background job).
     signal.signal(signal.SIGTERM, _raise_interrupt)
     signal.signal(signal.SIGINT, _raise_interrupt)
-    say = (lambda *a: None) if args.quiet else (lambda text: print(text, file=sys.stderr))
+    # --quiet hides the chatter (start, planned faults, progress, the summary), never a warning.
+    def warn(text: str) -> None:
+        print(text, file=sys.stderr)
+
+    say = (lambda *a: None) if args.quiet else warn
     code = 0
     agent_deaths: list[str] = []
     logger_death: str | None = None  # the summary says so: a run whose recording stopped must not look whole
@@ -663,15 +667,15 @@ def main(args: argparse.Namespace) -> int:
             for d in deaths:
                 if d.child.role == "agent":
                     agent_deaths.append(d.child.name)
-                    say(f"\nfxswarm run: {d.describe()}")
+                    warn(f"\nfxswarm run: {d.describe()}")
                     if args.fail_fast:
-                        say("fxswarm run: --fail-fast: ending the run")
+                        warn("fxswarm run: --fail-fast: ending the run")
                         code = 1
                 elif d.child.role == "logger":
                     logger_death = f"{d.describe()} at t = {swarm.sim_time():.2f} s"
-                    say(f"\nfxswarm run: warning: {d.describe()}; the swarm runs on without it")
+                    warn(f"\nfxswarm run: warning: {d.describe()}; the swarm runs on without it")
                 elif d.child.role == "router" and swarm.topology == "mesh":
-                    say(f"\nfxswarm run: warning: {d.describe()}; the swarm runs on over its direct links "
+                    warn(f"\nfxswarm run: warning: {d.describe()}; the swarm runs on over its direct links "
                         f"(a process that starts from now on cannot join it)")
                 else:
                     print(f"\nfxswarm run: {d.describe()}", file=sys.stderr)
@@ -694,7 +698,7 @@ def main(args: argparse.Namespace) -> int:
         code = 1
     except KeyboardInterrupt:
         code = 130
-        say("\nfxswarm run: interrupted")
+        warn("\nfxswarm run: interrupted")
     finally:
         for sig in (signal.SIGINT, signal.SIGTERM):  # a second Ctrl-C must not cut the clean-up short
             signal.signal(sig, signal.SIG_IGN)
@@ -703,7 +707,7 @@ def main(args: argparse.Namespace) -> int:
         how = swarm.stop(grace=3.0 if finished else 0.0)
         stopped = {k: v for k, v in how.items() if v != "exited"}
         if stopped and (code or not args.quiet):
-            say("fxswarm run: stopped " + ", ".join(f"{k} ({v})" for k, v in stopped.items()))
+            warn("fxswarm run: stopped " + ", ".join(f"{k} ({v})" for k, v in stopped.items()))
     summary = swarm.merge_summary({"launcher": {"swarm": swarm.swarm, "router": swarm.endpoint,
                                                 "topology": swarm.topology,
                                                 "secure": bool(args.secure),

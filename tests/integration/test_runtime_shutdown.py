@@ -322,3 +322,24 @@ def test_a_process_that_cannot_write_its_counters_still_closes_its_session_and_e
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+@pytest.mark.zenoh
+def test_quiet_hides_the_chatter_but_not_an_interruption(tmp_path):
+    launcher = start_launcher(tmp_path, 300.0, "--quiet")
+    try:
+        end = time.monotonic() + 60
+        while len(kids := children_of(launcher.pid)) < 9:  # started, whether up or still coming up
+            assert launcher.poll() is None and time.monotonic() < end, kids
+            time.sleep(0.05)
+        launcher.send_signal(signal.SIGINT)
+        _, err = launcher.communicate(timeout=60)
+        assert launcher.returncode == 130
+        # The user learns the run was cut short and what was stopped, quiet or not.
+        assert "fxswarm run: interrupted" in err and "stopped" in err, err
+        assert "processes up" not in err
+        assert all(gone(pid) for pid in kids)
+    finally:
+        if launcher.poll() is None:
+            os.killpg(launcher.pid, signal.SIGKILL)
+            launcher.wait()
