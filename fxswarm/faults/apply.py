@@ -33,6 +33,7 @@ class SwarmFaults:
         self.clock = clock
         self.mortal = mortal
         self.built: list = []
+        self.mortals: dict[str, Mortal] = {}  # plan target -> its stand-in
 
     def world(self, node):
         """The world node behind its inbox filter (or itself when nothing can reach it)."""
@@ -42,12 +43,22 @@ class SwarmFaults:
 
     def agent(self, robot_id: int, build: Callable[[], object]):
         """Robot ``robot_id``'s node, built by ``build()`` (again at each restart), filtered."""
-        def make():
-            return wrap(build(), "agent", robot_id, self.plan, self.sc.dt, self.lockstep, self.clock)
+        return self._node("agent", robot_id, f"agent:{robot_id}", build)
 
-        mine = [p for p in self.plan.processes if p.target == f"agent:{robot_id}"]
+    def leader(self, build: Callable[[], object]):
+        """The leader's node, built by ``build()`` (again at each restart), filtered: a plan may
+        kill or freeze the leader as it may a robot."""
+        return self._node("leader", 0, "leader", build)
+
+    def _node(self, role: str, ident: int, target: str, build: Callable[[], object]):
+        def make():
+            return wrap(build(), role, ident, self.plan, self.sc.dt, self.lockstep, self.clock)
+
+        mine = [p for p in self.plan.processes if p.target == target]
         out = Mortal(make, mine) if mine and self.mortal else make()
         self.built.append(out)
+        if isinstance(out, Mortal):
+            self.mortals[target] = out
         return out
 
     def poll(self) -> list:
@@ -64,7 +75,7 @@ class SwarmFaults:
         return link_counts(inboxes)
 
     def restarts(self) -> dict[str, int]:
-        return {f"agent:{getattr(n, 'id', '?')}": n.restarts for n in self.built if getattr(n, "restarts", 0)}
+        return {target: n.restarts for target, n in self.mortals.items() if n.restarts}
 
 
 def wrap_for_process(node, role: str, ident: int, plan: FaultPlan, dt: float, lockstep: bool, speed: float):

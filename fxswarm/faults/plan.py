@@ -169,8 +169,8 @@ class FaultPlan:
 
     def touches(self, receiver: str) -> bool:
         """Whether any link rule, cut or process fault can reach ``receiver`` (else it needs no
-        inbox filter): a dead agent concerns every receiver that would wait for it."""
-        if self.cuts or any(p.target.startswith("agent:") for p in self.processes):
+        inbox filter): a dead agent or leader concerns every receiver that would wait for it."""
+        if self.cuts or self.processes:
             return True
         return any(fnmatchcase(receiver, r.dst) for r in self.rules)
 

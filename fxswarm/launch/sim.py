@@ -51,8 +51,8 @@ class Simulation:
             self.plan = plan_of(sc)
         limits = self.plan.limits
         self.world = WorldNode(sc, limits=limits)
-        self.leader = LeaderNode(sc)
         self.faults = SwarmFaults(sc, self.plan)  # the plan's faults, if any, on each receiver's inbox
+        self.leader = self.faults.leader(lambda: LeaderNode(sc))
         self.agents = [self.faults.agent(r.id, lambda i=r.id: AgentNode(sc, i, limits=limits)) for r in sc.robots]
         for node in (self.faults.world(self.world), self.leader, *self.agents):
             attach(self.bus, node)

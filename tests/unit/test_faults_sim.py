@@ -133,3 +133,26 @@ def test_agent_2_killed_at_10_s_and_restarted_at_12_s_in_memory():
     assert rec["recovery_s"] is not None and rec["recovery_s"] < summary["fixed_time_bounds_s"]["formation"]
     # The restarted agent starts from its initial estimate (0): a fresh state, not the old one.
     assert np.array_equal(traj["ph"][np.searchsorted(t, 12.0 - 1e-9), 1], np.zeros(3))
+
+
+@pytest.mark.parametrize("fault", [{"kill": 3.0, "restart": 5.0}, {"freeze": 3.0, "thaw": 5.0}])
+def test_the_leader_killed_or_frozen_in_memory_goes_silent_as_over_zenoh(fault):
+    """`fxswarm sim` stands in for a leader process fault as for an agent's: the pinned robots
+    (1 and 4) stop hearing p0 and, told by the plan, act without waiting (the same plan over
+    Zenoh: tests/integration/test_faults_zenoh.py)."""
+    summary, traj = run(with_faults({"processes": [{"target": "leader", **fault}]}, duration=10.0))
+    assert summary["counters"]["missed_ticks"] == 0  # the plan says the leader is down: nobody waits
+    assert summary["faults"]["restarts"] == ({"leader": 1} if "kill" in fault else {})
+    degraded = summary["faults"]["degraded_ticks"]
+    # Silent 2 s; a held leader state counts as lost after the staleness limit.
+    assert set(degraded["no_leader"]) == {"1", "4"} and all(n > 100 for n in degraded["no_leader"].values())
+    assert degraded["world_held_at_zero"] == {}
+    (rec,) = summary["faults"]["recoveries"]
+    assert rec["max_error_during_m"] > 1.0  # the leader moved on without them
+
+
+def test_the_leader_killed_for_good_in_memory_leaves_the_swarm_behind():
+    summary, _ = run(with_faults({"processes": [{"target": "leader", "kill": 3.0}]}, duration=10.0))
+    held = summary["faults"]["degraded_ticks"]["no_leader"]
+    assert set(held) == {"1", "4"} and all(n >= 640 for n in held.values())  # 3.5 s to the end: 650 ticks
+    assert summary["estimate_error_final_m"] > 5.0
