@@ -10,7 +10,9 @@ from pathlib import Path
 
 import pytest
 
-TAG = "test"  # fxswarm-agent:test, fxswarm-world:test, ... (docker/build-images.sh)
+# fxswarm-agent:test, fxswarm-world:test, ... (docker/build-images.sh). FXSWARM_TEST_TAG lets two
+# checkouts test on one engine at once without one building over the other's images.
+TAG = os.environ.get("FXSWARM_TEST_TAG", "test")
 IMAGE = f"fxswarm-world:{TAG}"  # a role image with the router and health commands
 
 
