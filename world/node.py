@@ -177,7 +177,7 @@ class WorldNode:
         self.commands = {}
         out = [self._state_message()]
         self._record()
-        self.p = self.p + self.sc.dt * self.v  # explicit Euler (SPEC section 7)
+        self.move(self.sc.dt)
         self.tick += 1
         if self.tick >= self.sc.ticks:
             self.done = True
@@ -202,7 +202,7 @@ class WorldNode:
         self._heard = set()
         out = [self._state_message()]
         self._record()
-        self.p = self.p + dt * self.v
+        self.move(dt)
         self.tick += 1
         if self.tick >= self.sc.ticks:
             self.done = True
@@ -210,6 +210,11 @@ class WorldNode:
         return out + self._emit_tick()
 
     # --- shared -------------------------------------------------------------------------
+
+    def move(self, dt: float) -> None:
+        """The robots move ``dt`` s on the held commands: explicit Euler (SPEC section 7). The
+        ROS 2 world (:mod:`fxswarm.world.ros2`) takes the robots' measured poses here instead."""
+        self.p = self.p + dt * self.v
 
     def _note_silence(self, heard, dt: float) -> None:
         """Robots not ``heard`` this step keep their last command until silent longer than

@@ -49,14 +49,47 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--wait-for", action="append", default=[], metavar="ROLE/ID",
                    help="also wait for this process's liveliness before the clock starts (repeatable), e.g. "
                         "logger/0 where no orchestrator orders the start, or observer/0 for `fxswarm attach`")
+    p.add_argument("--ros2", action="store_true",
+                   help="a gateway to ROS 2 robots instead of the simulation (real time; needs fxswarm[ros2]; "
+                        "the scenario's [ros2] table, ROS_DOMAIN_ID and CYCLONEDDS_URI; docs/ros2.md)")
+
+
+def ros2_or_exit(sc: Scenario, who: str = "fxswarm world"):
+    """The ROS 2 world's module (:mod:`fxswarm.world.ros2`), once its extra, ``ROS_DOMAIN_ID`` and a
+    speed limit are there; else one line on stderr and exit 2 (before anything starts)."""
+    try:
+        from fxswarm.world import ros2
+    except ImportError as exc:
+        if not (exc.name or "").startswith("cyclonedds"):
+            raise
+        print(f"{who}: a ROS 2 world needs the ros2 extra (Cyclone DDS): pip install 'fxswarm[ros2]' ({exc})",
+              file=sys.stderr)
+        raise SystemExit(2) from None
+    try:
+        ros2.domain_id()
+    except ValueError as exc:
+        print(f"{who}: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+    if ros2.speed_limit(sc) is None:
+        print(f"{who}: {sc.source}: ros2.v_max: expected a speed limit (m/s) for real robots, in [ros2] v_max "
+              "or [scenario] v_max", file=sys.stderr)
+        raise SystemExit(2)
+    return ros2
 
 
 def build_node(scenario: Scenario, args: argparse.Namespace, plan: FaultPlan,
                clock: WallClock = time.monotonic):
     """The world's node as this process runs it (one place, so wrappers apply here)."""
-    node = WorldNode(scenario, limits=plan.limits)
+    if getattr(args, "ros2", False):
+        from fxswarm.world.ros2 import GatewayWorld, PoseBoard
+
+        node = GatewayWorld(scenario, PoseBoard(scenario.n, scenario.ros2.pose_timeout, clock), limits=plan.limits)
+    else:
+        node = WorldNode(scenario, limits=plan.limits)
     if args.clock == "realtime":
-        node = RealTimeWorld(node, scenario.dt / args.speed, clock, args.max_lag, args.tick_timeout,
+        # Real robots move on whether or not a robot lags: the ROS 2 world never holds its clock.
+        max_lag = 0 if getattr(args, "ros2", False) else args.max_lag
+        node = RealTimeWorld(node, scenario.dt / args.speed, clock, max_lag, args.tick_timeout,
                              cut_off=plan.cut_off_from_world)
     return wrap_node(node, "world", 0, plan, scenario, args)
 
@@ -109,17 +142,24 @@ def gone_robots(proc: RoleProcess) -> set[int]:
     return {int(name.split("/")[1]) for name in proc.gone if name.startswith("agent/")}
 
 
-def run_realtime(proc: RoleProcess, world_rt: RealTimeWorld) -> dict:
+def run_realtime(proc: RoleProcess, world_rt: RealTimeWorld, link=None) -> dict:
     """Tick when ``world_rt``'s pacer says so (:class:`~fxswarm.world.node.RealTimeWorld`
     decides: late ticks, holds for lagging robots); stop when the run is done. Returns its
-    report (``late_ticks``, ``held_ticks``, ``sensing_sent_again``, ``achieved_speed``, ``sense_to_command``)."""
+    report (``late_ticks``, ``held_ticks``, ``sensing_sent_again``, ``achieved_speed``, ``sense_to_command``).
+    ``link``: the ROS 2 world's :class:`~fxswarm.world.ros2.Ros2Link`: each tick reads the robots'
+    poses before and sends their commands after."""
     world: WorldNode = proc.core
     robots = [r.id for r in proc.sc.robots]
     proc.clock.start_now()
     proc.publish(world_rt.start())
 
     def tick() -> None:
+        if link is not None:
+            link.read(world.board)
+            world.gone = gone_robots(proc)
         proc.publish(world_rt.tick([r for r in robots if f"agent/{r}" in proc.alive]))
+        if link is not None:
+            link.send(world.velocities(), world.board.yaw)
         proc.clock.observe(world.t)
         if world.done:
             proc.stop("done")
@@ -128,8 +168,27 @@ def run_realtime(proc: RoleProcess, world_rt: RealTimeWorld) -> dict:
     return world_rt.report()
 
 
+def wait_for_poses(proc: RoleProcess, link, board, timeout: float) -> list[int]:
+    """The ROS 2 world: wait until every robot has published a pose; return those still unheard."""
+    deadline = Deadline(timeout, proc.wall_clock)
+    while not proc.stopping and not deadline.passed():
+        link.read(board)
+        if not board.unheard():
+            return []
+        proc.bus.poll(0.02)  # the poses' rate is the robots': look again at 50 Hz
+        proc.check_parent()
+    return board.unheard()
+
+
 def main(args: argparse.Namespace) -> int:
     sc = load_or_exit(args.config)
+    ros2 = None
+    if args.ros2:
+        if args.clock != "realtime" or args.speed != 1.0:
+            print("fxswarm world: --ros2 flies real robots: it runs with --clock realtime at --speed 1",
+                  file=sys.stderr)
+            return 2
+        ros2 = ros2_or_exit(sc)
     args.out = args.out or f"runs/{sc.name}-run"
     began = time.time()  # counters files older than this are an earlier run's
     proc = WorldProcess("world", 0, sc, args)
@@ -137,12 +196,18 @@ def main(args: argparse.Namespace) -> int:
     code = 0
     crashed = False
     summary_of = None  # builds summary.json once the others have left (their counters are in)
+    link = None  # the ROS 2 world's DDS side: every way out sends the robots zero Twists
     try:
         node = build_node(sc, args, proc.plan, proc.wall_clock)
+        if ros2 is not None:
+            link = ros2.Ros2Link(sc, ros2.domain_id())
         proc.watch(["leader/0", "agent/*", *args.wait_for])
         proc.attach(node)
         start = time.perf_counter()
         missing = wait_for_everyone(proc, args.wait_timeout, tuple(args.wait_for))
+        if link is not None and not missing:
+            unheard = wait_for_poses(proc, link, proc.core.board, args.wait_timeout)
+            missing = [sc.ros2.topic(sc.ros2.pose_topic, r) for r in unheard]
         if missing and not proc.stopping:
             print(f"fxswarm world: gave up after {args.wait_timeout:g} s waiting for {', '.join(missing)}",
                   file=sys.stderr)
@@ -154,7 +219,7 @@ def main(args: argparse.Namespace) -> int:
         if proc.lockstep:
             run_lockstep(proc, args.tick_timeout)
         else:
-            extra.update(run_realtime(proc, unwrap_realtime(node)))
+            extra.update(run_realtime(proc, unwrap_realtime(node), link))
         world: WorldNode = proc.core
         wall = time.perf_counter() - started
         extra.update(missed_ticks_world=world.missed_ticks, ticks=world.tick, wall_s=wall,
@@ -179,6 +244,9 @@ def main(args: argparse.Namespace) -> int:
         crashed = True
         raise
     finally:
+        if link is not None:  # first: nothing may keep moving once the world stops
+            extra["ros2_zero_twists_acknowledged"] = link.stop_all()
+            extra.update(link.report(), **proc.core.report())
         try:
             proc.write_counters(extra)
             if not crashed:  # the others wait for a world that is gone without having said so

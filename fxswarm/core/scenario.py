@@ -9,6 +9,7 @@ paths index arrays from 0, as TOML does; robot ids are 1-based (robot
 from __future__ import annotations
 
 import math
+import re
 import tomllib
 import warnings
 from dataclasses import dataclass, field
@@ -68,6 +69,7 @@ class Scenario:
     observer_graph: str = "oriented"  # [estimator] observer_graph (OBSERVER_GRAPHS): the links eq. (obs) uses
     logging: dict = field(repr=False, default_factory=dict)  # [logging], checked: the keys given (the logger's defaults)
     zenoh: dict = field(repr=False, default_factory=dict)  # [zenoh], checked: the keys given (the command line wins)
+    ros2: "Ros2Settings | None" = None  # [ros2]: how the ROS 2 world reaches the robots (defaults if absent)
 
     @property
     def n(self) -> int:
@@ -393,11 +395,65 @@ def _zenoh(zf: _Fields) -> dict:
     return out
 
 
+@dataclass(frozen=True)
+class Ros2Settings:
+    """[ros2]: the ROS 2 world's topics and limits (docs/ros2.md). Topics hold ``{id}``, the robot's id."""
+
+    pose_topic: str = "/robot{id}/pose"
+    pose_type: str = "PoseStamped"  # POSE_TYPES: geometry_msgs/PoseStamped or nav_msgs/Odometry
+    cmd_topic: str = "/robot{id}/cmd_vel"
+    frame: str = "world"  # the frame poses must come in and commands are meant in
+    v_max: float | None = None  # m/s per command; None: [scenario] v_max
+    pose_timeout: float = 0.5  # s without a pose before a robot is held at zero
+    drive: str = "holonomic"  # or "differential": (v, omega) from the world-frame velocity and heading
+    heading_gain: float = 2.0  # differential: omega = heading_gain * heading error, 1/s
+    omega_max: float = 2.0  # differential: |omega| limit, rad/s
+
+    def topic(self, pattern: str, robot: int) -> str:
+        return pattern.replace("{id}", str(robot))
+
+
+POSE_TYPES = ("PoseStamped", "Odometry")
+DRIVES = ("holonomic", "differential")
+_ROS_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+_FRAME_ID = re.compile(r"[A-Za-z0-9_./-]+")
+
+
+def _ros2_topic(f: _Fields, key: str, default: str) -> str:
+    """A ROS 2 topic name pattern: absolute, tokens of letters, digits and _ (not starting with a
+    digit), and ``{id}`` (the robot's id) exactly once."""
+    value = f.string(key, default)
+    expected = 'an absolute ROS 2 topic with {id} once, e.g. "/robot{id}/cmd_vel"'
+    tokens = value.replace("{id}", "1").split("/")
+    if (value.count("{id}") != 1 or not value.startswith("/")
+            or not all(_ROS_TOKEN.fullmatch(t) for t in tokens[1:])):
+        f.fail(key, expected, value)
+    return value
+
+
+def _ros2(f: _Fields) -> Ros2Settings:
+    """[ros2], checked before anything starts (unknown message type, malformed topic)."""
+    f.check_known({"pose_topic", "pose_type", "cmd_topic", "frame", "v_max", "pose_timeout", "drive",
+                   "heading_gain", "omega_max"})
+    d = Ros2Settings()
+    settings = Ros2Settings(
+        pose_topic=_ros2_topic(f, "pose_topic", d.pose_topic), pose_type=f.string("pose_type", d.pose_type, POSE_TYPES),
+        cmd_topic=_ros2_topic(f, "cmd_topic", d.cmd_topic), frame=f.string("frame", d.frame),
+        v_max=f.optional_number("v_max", positive=True), pose_timeout=f.number("pose_timeout", d.pose_timeout, positive=True),
+        drive=f.string("drive", d.drive, DRIVES), heading_gain=f.number("heading_gain", d.heading_gain, positive=True),
+        omega_max=f.number("omega_max", d.omega_max, positive=True))
+    if not _FRAME_ID.fullmatch(settings.frame):
+        f.fail("frame", "a frame id (letters, digits, _ . / -)", settings.frame)
+    if settings.pose_topic == settings.cmd_topic:
+        f.fail("cmd_topic", "a topic other than pose_topic", settings.cmd_topic)
+    return settings
+
+
 def parse(data: dict, source: str = "<scenario>") -> Scenario:
     """Validate a parsed TOML document into a :class:`Scenario`."""
     top = _Fields(source, data)
     top.check_known({"scenario", "gains", "estimator", "graph", "leader", "formation", "robots",
-                     "obstacles", "faults", "controller", "logging", "zenoh"})
+                     "obstacles", "faults", "controller", "logging", "zenoh", "ros2"})
     sc = top.table_at("scenario", required=True)
     sc.check_known({"name", "duration", "dt", "seed", "settle_tolerance", "d", "v_max"})
     name = sc.string("name", FilePath(source).stem)
@@ -510,6 +566,7 @@ def parse(data: dict, source: str = "<scenario>") -> Scenario:
         variant=variant, estimator_variant=estimator_variant, discretisation=discretisation,
         delay_compensation=delay_compensation, tracking=tracking, observer=observer, observer_graph=observer_graph,
         logging=_logging(top.table_at("logging")), zenoh=_zenoh(top.table_at("zenoh")),
+        ros2=_ros2(top.table_at("ros2")),
     )
     if observer is not None:
         accel = max_acceleration_inf(leader)

@@ -550,8 +550,10 @@ class Swarm:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", help="scenario file (TOML)")
     p.add_argument("--out", default=None, help="run folder (default: runs/<scenario name>)")
-    p.add_argument("--clock", choices=CLOCKS, default="lockstep",
-                   help="lockstep (bit-identical to `fxswarm sim`) or realtime")
+    p.add_argument("--clock", choices=CLOCKS, default=None,
+                   help="lockstep (bit-identical to `fxswarm sim`; the default) or realtime (the default with --world ros2)")
+    p.add_argument("--world", choices=("sim", "ros2"), default="sim",
+                   help="sim: the simulated world; ros2: a gateway to ROS 2 robots (real time; fxswarm[ros2]; docs/ros2.md)")
     p.add_argument("--speed", type=positive, default=None,
                    help="real time: simulation seconds per wall second (default 1)")
     p.add_argument("--swarm", type=swarm_name, default=None,
@@ -608,11 +610,21 @@ def _raise_interrupt(signum, frame) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    ros2 = args.world == "ros2"
+    if ros2 and (args.clock == "lockstep" or args.speed not in (None, 1.0)):
+        print("fxswarm run: --world ros2 flies real robots: real time (--clock realtime) at --speed 1 only",
+              file=sys.stderr)
+        return 2
+    args.clock = args.clock or ("realtime" if ros2 else "lockstep")
     given = [f"--{name.replace('_', '-')}" for name in ("speed", "max_lag") if getattr(args, name) is not None]
     if given and args.clock != "realtime":  # lock-step runs as fast as it can and never lags
         print(f"fxswarm run: {' and '.join(given)} set real time's pace: add --clock realtime", file=sys.stderr)
         return 2
     sc = load_or_exit(args.config)
+    if ros2:
+        from fxswarm.world.process import ros2_or_exit
+
+        ros2_or_exit(sc, "fxswarm run")  # the extra, ROS_DOMAIN_ID and a speed limit, before anything starts
     plan = plan_or_exit(sc, args.fault)  # resolved once here: every child receives this plan
     out = prepare_run_folder(args.out or f"runs/{sc.name}", "fxswarm run")
     recording: Path | None = out / "recording.rrd"  # where the logger writes its file, if it does
@@ -636,7 +648,8 @@ def main(args: argparse.Namespace) -> int:
                       logger=not args.no_logger, tick_timeout=args.tick_timeout, lease_ms=args.lease_ms,
                       scenario=sc, topology=args.topology, faults=tuple(args.fault or ()), plan=plan,
                       secure=args.secure, audit=args.audit,
-                      world_args=("--max-lag", str(args.max_lag)) if args.max_lag is not None else (),
+                      world_args=(("--max-lag", str(args.max_lag)) if args.max_lag is not None else ())
+                      + (("--ros2",) if ros2 else ()),
                       logger_args=("--rerun", args.rerun) if args.rerun is not None else ())
     except ValueError as exc:  # options that do not go together (e.g. --audit with --topology mesh)
         print(f"fxswarm run: {exc}", file=sys.stderr)

@@ -1,7 +1,9 @@
-"""The agent, world and leader images carry no Rerun and no matplotlib: their roles never import them.
+"""The agent, world and leader images carry no Rerun, no matplotlib and no Cyclone DDS: their roles
+never import them (the ROS 2 world loads Cyclone DDS only with ``--ros2``).
 
-Each check runs in a fresh interpreter where importing ``rerun``, ``matplotlib`` or ``pyarrow``
-fails, as it does in those images (``fxswarm[logger]`` and ``fxswarm[report]`` are extras).
+Each check runs in a fresh interpreter where importing ``rerun``, ``matplotlib``, ``pyarrow`` or
+``cyclonedds`` fails, as it does in those images (``fxswarm[logger]``, ``fxswarm[report]`` and
+``fxswarm[ros2]`` are extras).
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ BLOCK = """
 import importlib.abc, sys
 class Absent(importlib.abc.MetaPathFinder):
     def find_spec(self, name, path=None, target=None):
-        if name.split(".")[0] in ("rerun", "rerun_bindings", "matplotlib", "pyarrow"):
+        if name.split(".")[0] in ("rerun", "rerun_bindings", "matplotlib", "pyarrow", "cyclonedds"):
             raise ModuleNotFoundError(f"No module named {name!r} (blocked: not in this image)")
 sys.meta_path.insert(0, Absent())
 """
@@ -33,7 +35,7 @@ try:
     main([{command!r}, "--help"])
 except SystemExit as exc:
     assert exc.code == 0, exc.code
-loaded = sorted(m for m in sys.modules if m.split(".")[0] in ("rerun", "matplotlib", "pyarrow"))
+loaded = sorted(m for m in sys.modules if m.split(".")[0] in ("rerun", "matplotlib", "pyarrow", "cyclonedds"))
 assert not loaded, loaded
 """)
     assert r.returncode == 0, r.stderr
