@@ -29,6 +29,7 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -218,6 +219,7 @@ class Swarm:
     _state: WorldState | None = None
     alive: set[str] = field(default_factory=set)
     bus: ZenohBus | None = None
+    state_listener: Callable[[WorldState], object] | None = None  # each valid world state heard (`run --ros2`)
 
     def __post_init__(self) -> None:
         self.out = Path(self.out)
@@ -356,6 +358,10 @@ class Swarm:
 
     def _on_state(self, topic: str, payload: bytes) -> None:
         self._state_bytes = payload  # decoded only when read: most states are never looked at
+        if self.state_listener is not None:
+            state = self.state
+            if state is not None:
+                self.state_listener(state)
 
     @property
     def state(self) -> WorldState | None:
@@ -554,6 +560,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="lockstep (bit-identical to `fxswarm sim`; the default) or realtime (the default with --world ros2)")
     p.add_argument("--world", choices=("sim", "ros2"), default="sim",
                    help="sim: the simulated world; ros2: a gateway to ROS 2 robots (real time; fxswarm[ros2]; docs/ros2.md)")
+    p.add_argument("--ros2", action="store_true",
+                   help="also publish the swarm to ROS 2 (robot and leader poses, estimates, obstacles as markers) "
+                        "for RViz, Foxglove and rosbag2 (fxswarm[ros2]; docs/ros2.md)")
     p.add_argument("--speed", type=positive, default=None,
                    help="real time: simulation seconds per wall second (default 1)")
     p.add_argument("--swarm", type=swarm_name, default=None,
@@ -625,6 +634,12 @@ def main(args: argparse.Namespace) -> int:
         from fxswarm.world.process import ros2_or_exit
 
         ros2_or_exit(sc, "fxswarm run")  # the extra, ROS_DOMAIN_ID and a speed limit, before anything starts
+    view = None
+    if args.ros2:
+        from fxswarm.world.process import ros2_module_or_exit
+
+        ros2_view = ros2_module_or_exit("fxswarm run")
+        view = ros2_view.Ros2View(sc, ros2_view.domain_id())
     plan = plan_or_exit(sc, args.fault)  # resolved once here: every child receives this plan
     out = prepare_run_folder(args.out or f"runs/{sc.name}", "fxswarm run")
     recording: Path | None = out / "recording.rrd"  # where the logger writes its file, if it does
@@ -650,7 +665,8 @@ def main(args: argparse.Namespace) -> int:
                       secure=args.secure, audit=args.audit,
                       world_args=(("--max-lag", str(args.max_lag)) if args.max_lag is not None else ())
                       + (("--ros2",) if ros2 else ()),
-                      logger_args=("--rerun", args.rerun) if args.rerun is not None else ())
+                      logger_args=("--rerun", args.rerun) if args.rerun is not None else (),
+                      state_listener=view.publish if view is not None else None)
     except ValueError as exc:  # options that do not go together (e.g. --audit with --topology mesh)
         print(f"fxswarm run: {exc}", file=sys.stderr)
         return 2
