@@ -251,10 +251,10 @@ def main(args: argparse.Namespace) -> int:
         crashed = True
         raise
     finally:
-        if link is not None:  # first: nothing may keep moving once the world stops
-            extra["ros2_zero_twists_acknowledged"] = link.stop_all()
-            extra.update(link.report(), **proc.core.report())
         try:
+            if link is not None:  # first: nothing may keep moving once the world stops
+                extra["ros2_zero_twists_acknowledged"] = link.stop_all()
+                extra.update(link.report(), **proc.core.report())
             proc.write_counters(extra)
             if not crashed:  # the others wait for a world that is gone without having said so
                 proc.end_run()

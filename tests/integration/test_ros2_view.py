@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import importlib.util
 import os
-import subprocess
 import time
 import tomllib
 
@@ -14,7 +13,7 @@ import pytest
 
 from fxswarm.core.scenario import load
 from fxswarm.testing import dump_toml
-from ros2_support import ROBOTS, dds_environment
+from ros2_support import ROBOTS, dds_environment, running
 from support import CONFIGS, fxswarm_command
 
 pytest.importorskip("cyclonedds")
@@ -54,9 +53,8 @@ def test_fxswarm_run_ros2_publishes_poses_estimates_leader_and_obstacle_markers(
     markers = DataReader(dp, Topic(dp, "rt/fxswarm/obstacles", MarkerArray_), qos=qos)
     got: dict[str, list] = {n: [] for n in [*names, "obstacles"]}
 
-    run = subprocess.Popen(fxswarm_command("run", config, "--ros2", "--clock", "realtime", "--no-logger", "--quiet",
-                                           "--out", tmp_path / "run"), stderr=subprocess.PIPE, text=True)
-    try:
+    with running(fxswarm_command("run", config, "--ros2", "--clock", "realtime", "--no-logger", "--quiet",
+                                 "--out", tmp_path / "run")) as run:
         end = time.monotonic() + 120
         while run.poll() is None and time.monotonic() < end:
             for n, r in readers.items():
@@ -64,10 +62,6 @@ def test_fxswarm_run_ros2_publishes_poses_estimates_leader_and_obstacle_markers(
             got["obstacles"] += [s for s in markers.take(N=100) if isinstance(s, MarkerArray_)]
             time.sleep(0.05)
         _, err = run.communicate(timeout=30)
-    finally:
-        if run.poll() is None:
-            run.kill()
-            run.communicate()
     assert run.returncode == 0, err
     for n, r in readers.items():
         got[n] += [s for s in r.take(N=1000) if isinstance(s, PoseStamped)]

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from fxswarm.core.scenario import load
-from ros2_support import Robots, dds_environment
+from ros2_support import Robots, dds_environment, running
 from support import CONFIGS, fxswarm_command
 
 pytest.importorskip("cyclonedds")
@@ -85,12 +85,19 @@ def test_ros2_world_flies_dds_robots_into_formation_and_leaves_every_one_at_zero
     assert report["closest_m"] >= COLLISION_M, report["closest_m"]
 
 
-@pytest.mark.zenoh
-def test_sigterm_to_the_ros2_world_mid_run_leaves_every_robot_at_zero(robots, launch_swarm):
+@pytest.fixture
+def flying(robots, launch_swarm):
+    """The stand-in robots flown by a swarm whose world is the ROS 2 one, 2 s into the run."""
     stand_in = robots()
     swarm = launch_swarm(CONFIG, clock="realtime", world_args=("--ros2",))
     stand_in.wait_for("moving", timeout=60)
     swarm.wait_for_sim_time(2.0)
+    return stand_in, swarm
+
+
+@pytest.mark.zenoh
+def test_sigterm_to_the_ros2_world_mid_run_leaves_every_robot_at_zero(flying):
+    stand_in, swarm = flying
     swarm.terminate("world")
     stand_in.wait_for("stopped", timeout=10)
     report = stand_in.finish()
@@ -100,19 +107,25 @@ def test_sigterm_to_the_ros2_world_mid_run_leaves_every_robot_at_zero(robots, la
 
 
 @pytest.mark.zenoh
+def test_when_the_gateway_loses_the_swarm_every_robot_gets_zero_at_once(flying):
+    stand_in, swarm = flying
+    for r in swarm.scenario.robots:
+        swarm.kill(f"agent-{r.id}")
+    stand_in.wait_for("stopped", timeout=5)
+    summary = swarm.wait_done()  # the world runs on to the end, every robot held at zero
+    assert summary["complete"]
+    report = stand_in.finish()
+    assert report["last_twist"] == [[0.0, 0.0, 0.0]] * 4
+
+
+@pytest.mark.zenoh
 def test_a_robot_whose_pose_goes_stale_is_reported_and_held_at_zero(tmp_path, robots):
     stand_in = robots("--mute", "2:1.0")
     out = tmp_path / "run"
-    run = subprocess.Popen(fxswarm_command("run", CONFIG, "--world", "ros2", "--no-logger", "--quiet", "--out", out),
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
+    with running(fxswarm_command("run", CONFIG, "--world", "ros2", "--no-logger", "--quiet", "--out", out)) as run:
         stand_in.wait_for("muted 2", timeout=90)
         stand_in.wait_for("held 2", timeout=5)  # pose_timeout is 0.5 s
         _, err = run.communicate(timeout=120)
-    finally:
-        if run.poll() is None:
-            run.kill()
-            run.communicate()
     assert run.returncode == 0, err
     report = stand_in.finish()
     assert report["last_twist"][1] == [0.0, 0.0, 0.0]
