@@ -7,7 +7,7 @@ each agent's sensing, the hold rule for a silent agent, the record, the summary.
 :meth:`GatewayWorld.move` differs: it takes the poses the robots published instead of
 ``p += dt * v``. Real time only.
 
-Safety, in one place (:meth:`GatewayWorld.velocities`): every command is limited to ``v_max``;
+Safety, in one place (:meth:`GatewayWorld.safe`): every command is limited to ``v_max``;
 a robot whose agent is silent longer than ``silent_hold`` (the world's hold rule) or gone, or
 whose pose is older than ``[ros2] pose_timeout``, is sent a zero Twist (a stale pose is
 reported on stderr); :meth:`Ros2Link.stop_all` sends every robot a zero Twist and waits for the
@@ -138,8 +138,9 @@ class GatewayWorld(WorldNode):
         return super().start()
 
     def move(self, dt: float) -> None:
-        """The robots moved themselves: take their latest poses (a stale one is kept, and the
-        robot held at zero by :meth:`velocities`; each new stale episode is said on stderr)."""
+        """The robots moved themselves: take their latest poses (a stale one is kept, and its
+        robot held at zero; each new stale episode is said on stderr). The held commands become
+        what is sent (:meth:`safe`), so teammates sense a held robot as still."""
         fresh = self.board.fresh()
         self.p = np.where(fresh[:, None], self.board.p, self.p)
         became = ~fresh & ~self.stale
@@ -151,18 +152,23 @@ class GatewayWorld(WorldNode):
             self.stale_episodes += became
         self.stale = ~fresh
         self.stale_pose_ticks += self.stale
+        self.limited_ticks += np.linalg.norm(self.v, axis=1) > self.v_max + 1e-9
+        self.v = self.safe(self.v)
 
-    def velocities(self) -> np.ndarray:
-        """The world-frame velocities to send (n, 3): the held commands (the world's hold rule
-        already zeroes a silent agent's), limited to ``v_max``; zero for a robot whose agent is
-        gone or whose pose is stale."""
-        v = self.v.copy()
-        self.limited_ticks += np.linalg.norm(v, axis=1) > self.v_max + 1e-9
+    def safe(self, v: np.ndarray) -> np.ndarray:
+        """Velocities ``v`` (n, 3) as they may reach the robots: limited to ``v_max``, zero for a
+        robot whose agent is gone or whose pose is stale (the world's hold rule has already
+        zeroed a silent agent's)."""
         v = limited(v, self.v_max)
         v[self.stale] = 0.0
         for r in self.gone:
             v[r - 1] = 0.0
         return v
+
+    def velocities(self) -> np.ndarray:
+        """The world-frame velocities to send now (n, 3): the held commands made :meth:`safe`
+        (again: a command may have landed, on a Zenoh thread, since :meth:`move`)."""
+        return self.safe(self.v.copy())
 
     def report(self) -> dict:
         """Counters for the world's counters file."""

@@ -213,7 +213,9 @@ def test_a_stale_pose_holds_its_robot_at_zero_and_is_said(capsys):
     assert "robot 3's pose is 0.60 s old (limit 0.5 s): holding it at zero" in capsys.readouterr().err
     world.advance(world.sc.dt)
     assert capsys.readouterr().err == ""  # said once per episode
+    assert world.v[2, 0] == 0.0  # as its teammates sense it: still
     board.put(3, (0.0, 0.0, 3.0), 0.0)
+    commands(world, [[0.2, 0, 0]] * 4)
     world.advance(world.sc.dt)
     assert world.velocities()[2, 0] == 0.2  # its pose is back: so are its commands
     assert world.report()["ros2_stale_episodes"]["3"] == 1
