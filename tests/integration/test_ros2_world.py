@@ -9,6 +9,7 @@ a domain of the test's own.
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 
 import numpy as np
@@ -83,6 +84,19 @@ def test_ros2_world_flies_dds_robots_into_formation_and_leaves_every_one_at_zero
     offsets = np.array([r.offset.position(sc.duration) for r in sc.robots])
     assert shape_error(np.array(report["positions"]), offsets) <= FORMATION_TOLERANCE_M, report["positions"]
     assert report["closest_m"] >= COLLISION_M, report["closest_m"]
+
+
+@pytest.mark.zenoh
+def test_ctrl_c_on_fxswarm_run_leaves_every_robot_at_zero(tmp_path, robots):
+    stand_in = robots()
+    with running(fxswarm_command("run", CONFIG, "--world", "ros2", "--no-logger", "--quiet",
+                                 "--out", tmp_path / "run")) as run:
+        stand_in.wait_for("moving", timeout=90)
+        run.send_signal(signal.SIGINT)
+        stand_in.wait_for("stopped", timeout=10)
+        _, err = run.communicate(timeout=30)
+    assert run.returncode == 130, err
+    assert stand_in.finish()["last_twist"] == [[0.0, 0.0, 0.0]] * 4
 
 
 @pytest.fixture
