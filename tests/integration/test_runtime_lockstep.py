@@ -81,6 +81,8 @@ SHORTENED = {
     "paper": ({"duration": 1.5}, lambda s: s["ticks"] == 150),
     # 24 robots through the router, explicit edges, moving obstacles: avoidance from the start.
     "large": ({"duration": 0.5}, lambda s: s["robots"] == 24 and len(s["avoidance_episodes"]) >= 1),
+    # The ROS 2 world's example (4 robots at 50 Hz, a speed limit); simulated here, its [ros2] ignored.
+    "ros2-square": ({"duration": 1.0}, lambda s: s["robots"] == 4 and s["ticks"] == 50),
     # 16 robots on a line, one pinned, a constant-velocity leader: every hop's lag is its feature.
     "line-16": ({"duration": 1.0}, lambda s: s["robots"] == 16 and s["ticks"] == 100),
     # 100 robots (101 processes and a router), a 50 Hz grid: its scale is its feature; 5 ticks.
