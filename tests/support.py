@@ -31,6 +31,36 @@ def copy_source(dest: Path) -> Path:
     return dest
 
 
+def stop_processes(procs) -> None:
+    """SIGTERM every process of ``procs`` still running, then wait for each (SIGKILL after 30 s)."""
+    import subprocess
+
+    for p in procs:
+        if p.poll() is None:
+            p.terminate()
+    for p in procs:
+        try:
+            p.wait(30)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
+def wait_for_line(log: Path, needle: str, running=(), timeout: float = 60.0) -> str:
+    """Wait until the file ``log`` says ``needle`` while every process in ``running`` still runs;
+    return that line."""
+    import time
+
+    deadline = time.monotonic() + timeout
+    while True:
+        for line in log.read_text().splitlines():
+            if needle in line:
+                return line
+        assert time.monotonic() < deadline, f"{log.name} never said {needle!r}: {log.read_text()[-2000:]}"
+        assert all(p.poll() is None for p in running), f"{log.name}: {log.read_text()[-2000:]}"
+        time.sleep(0.05)
+
+
 def fxswarm_command(*args: str) -> list[str]:
     """The command line of ``fxswarm ARGS...`` with this interpreter (the source tree's fxswarm)."""
     return [sys.executable, "-m", "fxswarm.cli", *map(str, args)]

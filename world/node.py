@@ -86,6 +86,8 @@ class WorldNode:
         self.silent_s = np.zeros(n)  # how long each robot's agent has been silent, s
         self._anyone_silent = False  # whether silent_s has a non-zero entry (fast path when not)
         self.held_at_zero = np.zeros(n, dtype=int)  # ticks a silent robot was held at zero velocity
+        self.degraded_ticks = 0  # ticks with at least one robot held at zero: it could not hear them
+        self.unheard_since: int | None = None  # first tick of the current stretch with every robot held
         self.flag_ticks = np.zeros((n, 8), dtype=int)  # ticks each Command.flags bit was set, per robot
         self._heard: set[int] = set()  # real time: robots heard since the last advance
         self._sensed: tuple | None = None
@@ -229,6 +231,17 @@ class WorldNode:
         if hold.any():
             self.v[hold] = 0.0
             self.held_at_zero += hold
+            self.degraded_ticks += 1
+        if not hold.all():
+            self.unheard_since = None
+        elif self.unheard_since is None:
+            self.unheard_since = self.tick
+
+    def degraded(self) -> dict:
+        """summary.json's ``degraded``: ``{"ticks": ticks with a robot held at zero because the world
+        had not heard it for longer than ``silent_hold``, "robots": [their ids]}``."""
+        return {"ticks": int(self.degraded_ticks),
+                "robots": [r.id for r, held in zip(self.sc.robots, self.held_at_zero) if held]}
 
     def _take_links(self, cmd: Command) -> None:
         """Hold robot ``cmd.robot``'s link report (one with the wrong number of links is counted, not held)."""

@@ -13,7 +13,16 @@ then runs the clock:
   from each sensing message to the matching command's arrival.
 
 At the end it writes ``trajectory.npz`` and ``summary.json`` (the same as
-``fxswarm sim``) into ``--out``, and its counters into ``--out/processes/``.
+``fxswarm sim``) into ``--out``, and its counters into ``--out/processes/``; then it
+serves that record on ``world/record`` (:mod:`fxswarm.runtime.record`) until the
+observers still there (``alive/observer/*``, e.g. ``fxswarm attach``) have left, up to
+``--record-wait`` s.
+
+Saying it: it says at once when it has lost every router, and when one is back
+(:class:`~fxswarm.runtime.connectivity.Connectivity`); ``summary.json`` has the outages
+(``router_outages``) and the ticks it ran with robots it could not hear (``degraded``).
+A run whose last ticks heard no robot at all (the world flew alone to the end: e.g. its
+router gone for good) is no success: it says so and exits 1.
 """
 
 from __future__ import annotations
@@ -23,7 +32,7 @@ import signal
 import sys
 import time
 
-from fxswarm.core.bus import WORLD_STATE
+from fxswarm.core.bus import WORLD_RECORD, WORLD_STATE
 from fxswarm.core.messages import Message
 from fxswarm.core.pacing import Deadline, WallClock
 from fxswarm.core.scenario import Scenario
@@ -31,9 +40,14 @@ from fxswarm.faults.plan import FaultPlan
 from fxswarm.faults.summary import build_summary
 from fxswarm.runtime.numbers import non_negative_int, positive
 from fxswarm.runtime.output import read_process_counters, write_run
+from fxswarm.runtime.record import Record, RecordServer
 from fxswarm.runtime.process import RoleProcess, add_process_arguments, run_periodic_loop, wrap_node
 from fxswarm.runtime.config import load_or_exit
+from fxswarm.runtime.zenoh_bus import wait_until
 from fxswarm.world.node import RealTimeWorld, TickTimer, WorldNode
+
+#: Exit status of a world that heard none of its robots at the end of its run.
+ALONE_EXIT = 1
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -52,6 +66,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ros2", action="store_true",
                    help="a gateway to ROS 2 robots instead of the simulation (real time; needs fxswarm[ros2]; "
                         "the scenario's [ros2] table, ROS_DOMAIN_ID and CYCLONEDDS_URI; docs/ros2.md)")
+    p.add_argument("--record-wait", type=positive, default=60.0, metavar="S",
+                   help="after the run, serve its record (world/record) for up to S s while an observer "
+                        "(alive/observer/*, e.g. `fxswarm attach`) is still there to fetch it (default 60)")
 
 
 def ros2_or_exit(sc: Scenario, who: str = "fxswarm world"):
@@ -109,6 +126,19 @@ class WorldProcess(RoleProcess):
 
     def is_late(self, msg: Message) -> bool:
         return self.core.is_late(msg)
+
+    def __init__(self, *args, **kwargs) -> None:
+        self.observers: set[str] = set()  # alive/observer/* tokens up now: who may fetch the record
+        super().__init__(*args, **kwargs)
+
+    def on_observer(self, name: str, up: bool) -> None:
+        (self.observers.add if up else self.observers.discard)(name)
+
+    def sim_now(self):
+        def now() -> tuple[float, int]:
+            core = self.core
+            return (core.t, core.tick) if core is not None else (0.0, 0)
+        return now
 
     def in_send_order(self, out: list) -> list:
         # Sensing first: the next tick waits on it; the state (for loggers) can follow.
@@ -209,6 +239,7 @@ def main(args: argparse.Namespace) -> int:
         if ros2 is not None:
             link = ros2.Ros2Link(sc, ros2.domain_id())
         proc.watch(["leader/0", "agent/*", *args.wait_for])
+        proc.bus.watch_alive("observer/*", proc.on_observer)  # not in alive/gone: observers come and go
         proc.attach(node)
         start = time.perf_counter()
         missing = wait_for_everyone(proc, args.wait_timeout, tuple(args.wait_for))
@@ -241,12 +272,14 @@ def main(args: argparse.Namespace) -> int:
 
             def summarise(processes: dict) -> dict:
                 return build_summary(sc, world.trajectory(), proc.plan, wall_s=wall, world=world, runner=runner,
-                                     processes=processes)
+                                     processes=processes, router_outages=proc.connectivity.report())
 
             summary_of = summarise
         if not world.done:  # a run cut short is not a success: stopped by a signal, say which (128 + n)
             signalled = proc.stop_reason in ("SIGTERM", "SIGINT")
             code = 128 + signal.Signals[proc.stop_reason].value if signalled else 1
+        elif say_degraded(world, proc.connectivity.report()):
+            code = ALONE_EXIT
     except BaseException:
         crashed = True
         raise
@@ -261,10 +294,48 @@ def main(args: argparse.Namespace) -> int:
             if summary_of is not None and not crashed:
                 # After end_run: the processes that left have written their counters (a launcher,
                 # if any, merges them again once every process has stopped).
-                write_run(args.out, summary_of(read_process_counters(args.out, since=began)), proc.core.trajectory())
+                summary = summary_of(read_process_counters(args.out, since=began))
+                out = write_run(args.out, summary, proc.core.trajectory())
+                serve_record(proc, Record(summary, (out / "trajectory.npz").read_bytes()), args.record_wait)
         finally:
             proc.close()  # always: an open session hangs the exit
     return code
+
+
+def say_degraded(world: WorldNode, outages: list[dict]) -> bool:
+    """Say on the console how the run was degraded, if it was; return whether the world heard
+    none of its robots at the end (it flew alone: no success, whatever ``complete`` says)."""
+    degraded = world.degraded()
+    if outages:
+        print(f"fxswarm world: warning: lost every router {len(outages)} time(s) during the run: "
+              + ", ".join(f"t = {o['start']:.2f}-{'end' if o['end'] is None else format(o['end'], '.2f')} s "
+                          f"({o['ticks']} ticks)" for o in outages), file=sys.stderr)
+    if degraded["ticks"]:
+        print(f"fxswarm world: warning: degraded run: {degraded['ticks']} of {world.tick} ticks ran with robots it "
+              f"could not hear (held at zero velocity: robots {', '.join(map(str, degraded['robots']))}); "
+              f"summary.json: degraded", file=sys.stderr)
+    if world.unheard_since is None:
+        return False
+    print(f"fxswarm world: heard none of its {world.sc.n} robots from t = {world.unheard_since * world.sc.dt:.2f} s "
+          f"to the end ({world.tick - world.unheard_since} of {world.tick} ticks flown alone"
+          f"{', its router lost' if outages and outages[-1]['end'] is None else ''}): "
+          f"the run is not a success; exit status {ALONE_EXIT}", file=sys.stderr)
+    return True
+
+
+def serve_record(proc: WorldProcess, record: Record, wait_s: float) -> None:
+    """Serve the run's record while observers are there to fetch it, up to ``wait_s`` s."""
+    server = RecordServer(proc.bus.session, f"{proc.bus.root}/{WORLD_RECORD}", record)
+    try:
+        observers = proc.observers
+        if observers:
+            print(f"fxswarm world: serving the run's record to {', '.join(sorted(observers))} (up to {wait_s:g} s)",
+                  file=sys.stderr)
+            if not wait_until(proc.bus, lambda: not observers, wait_s):
+                print(f"fxswarm world: {', '.join(sorted(observers))} still there after {wait_s:g} s; the record "
+                      f"was fetched {server.served} time(s)", file=sys.stderr)
+    finally:
+        server.close()
 
 
 def unwrap_realtime(node) -> RealTimeWorld:

@@ -30,6 +30,9 @@ LEADER_STATE = "leader/state"
 RUN_OVER = "run/over"
 #: The scenario file's text, answered by the router (``fxswarm router --scenario``) to observers.
 SCENARIO = "scenario"
+#: The world's own record of the run (summary and trajectory), answered by the world once the run
+#: has ended, to observers that need the whole run folder (``fxswarm attach``; fxswarm.runtime.record).
+WORLD_RECORD = "world/record"
 
 
 def sense_topic(robot: int) -> str:

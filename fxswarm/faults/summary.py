@@ -21,7 +21,8 @@ LINK_COUNTS = ("delivered", "dropped", "delayed", "duplicated")
 def build_summary(sc: Scenario, traj: dict[str, np.ndarray], plan: FaultPlan, *, wall_s: float,
                   world=None, links: dict[str, dict[str, int]] | None = None,
                   restarts: dict[str, int] | None = None, runner: dict | None = None,
-                  processes: dict[str, dict] | None = None, process_events: list[dict] | None = None) -> dict:
+                  processes: dict[str, dict] | None = None, process_events: list[dict] | None = None,
+                  router_outages: list[dict] | None = None) -> dict:
     """The run's summary, as a dict ready for JSON.
 
     traj: the world's trajectory (arrays keyed as in ``trajectory.npz``); wall_s: the run's
@@ -30,10 +31,17 @@ def build_summary(sc: Scenario, traj: dict[str, np.ndarray], plan: FaultPlan, *,
     delivered/dropped/delayed/duplicated); restarts: ``"agent:<id>"`` -> restarts seen in
     this process; runner: the runner's own top-level facts (e.g. ``clock``,
     ``missed_ticks``, ``counters``), added after the common metrics. processes and
-    process_events: see :func:`add_processes`.
+    process_events: see :func:`add_processes`. router_outages: the runner's
+    :meth:`~fxswarm.runtime.connectivity.Connectivity.report` (none in one process).
+
+    ``complete`` (a runner's) says every tick ran; ``degraded`` whether it ran with robots the
+    world could not hear (``{"ticks": n, "robots": [ids]}``, ticks 0 for a healthy run).
     """
     summary = summarise(sc, traj, wall_s)
     summary.update(runner or {})
+    degraded = getattr(world, "degraded", None)
+    summary["degraded"] = degraded() if degraded is not None else {"ticks": 0, "robots": []}
+    summary["router_outages"] = list(router_outages or [])
     summary.update(fault_summary(sc, plan, traj, world, dict(links or {}), restarts))
     if processes is not None:
         add_processes(summary, processes, process_events)

@@ -2,18 +2,23 @@
 
 A Zenoh client of the swarm's router (e.g. ``tcp/node1:7447``, the port a
 stack publishes) that does the logger's work remotely: it takes every
-``world/state`` of the run, shows progress, and when the world ends the run
-(its ``run/over`` token) writes into ``DIR``, on this machine:
+``world/state`` of the run for progress and the live recording, and when the
+world ends the run (its ``run/over`` token) it fetches the world's own record
+(``world/record``, :mod:`fxswarm.runtime.record`: the files the world wrote,
+checked by size, digest and tick count) and writes into ``DIR``, on this machine:
 
-* ``trajectory.npz`` rebuilt from the world's states (the arrays the world
-  itself saves, ``fxswarm.world.node.WorldNode.trajectory``);
-* ``summary.json`` from it (:func:`fxswarm.core.metrics.summarise`, as ``fxswarm
-  run`` and ``sim`` write it), plus what only an observer knows: states
-  missed, and which processes went and came back, the logger included (a
-  dead logger is reported, not silent);
+* ``trajectory.npz``: the world's own file, every tick, however lossy the live
+  stream was (it drops under load);
+* ``summary.json``: the world's own, plus what only an observer knows: states
+  the live stream missed, and which processes went and came back, the logger
+  included (a dead logger is reported, not silent), and ``record`` (where the
+  folder came from);
 * ``recording.rrd`` (and any ``--rerun`` output: ``web`` or ``grpc`` is a
   live viewer attached the same way), when Rerun is installed
   (``fxswarm[logger]``).
+
+Without the world's record (the world left without ending the run, or never
+answered), it rebuilds the folder from the states it saw and says so.
 
 The scenario comes from ``--config`` or, without it, from the router
 (``fxswarm router --scenario``; a stack's router serves it) into
@@ -25,13 +30,14 @@ the run is missed.
 Secure mode (``--secure KEYS``): a client of the router over mutual TLS only
 (``tls/`` endpoint), showing the ``observer`` certificate from KEYS, whose
 rights are exactly what this needs: hear ``world/state``, watch liveliness,
-ask the router for the scenario, declare ``alive/observer/<id>``
-(docs/security.md).
+ask the router for the scenario and the world for its record, declare
+``alive/observer/<id>`` (docs/security.md).
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import math
 import os
 import signal
@@ -46,8 +52,10 @@ from fxswarm.core import bus as topics
 from fxswarm.core.messages import WorldState
 from fxswarm.core.metrics import summarise
 from fxswarm.core.scenario import Scenario
+from fxswarm.runtime.connectivity import Connectivity
 from fxswarm.runtime.numbers import positive, swarm_name
-from fxswarm.runtime.output import prepare_run_folder, write_run
+from fxswarm.runtime.output import prepare_run_folder, write_run, write_summary
+from fxswarm.runtime.record import Record, RecordError, fetch_record
 from fxswarm.runtime.tls import SECURE_ENV, checked
 from fxswarm.runtime.zenoh_bus import ConnectError, ZenohBus, ZenohOptions
 from fxswarm.world.node import nearest_objects
@@ -60,6 +68,8 @@ SETTLE_S = 1.0  # after run/over: states still in flight
 #: The world's token gone without run/over (killed, frozen or cut off past its lease): the run
 #: cannot go on (the world is the simulation). Its run/over may still be on the way: wait this long.
 WORLD_GONE_S = 3.0
+#: After run/over: how long to keep asking the world for its record (it serves it once written).
+RECORD_TIMEOUT_S = 120.0
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -85,8 +95,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 class Observer:
     """The run as the world's states tell it: arrays by tick, plus who came and went."""
 
-    def __init__(self, sc: Scenario) -> None:
+    def __init__(self, sc: Scenario, cut_around=lambda _when: False) -> None:
         self.sc = sc
+        # (monotonic s) -> whether this observer had lost every router itself about then: tokens
+        # that go with our own link went nowhere (Connectivity.cut_around)
+        self.cut_around = cut_around
+        # role/id -> when its token last went (monotonic s), and whether that went into gone_at
+        self.left_at: dict[str, tuple[float, bool]] = {}
         n, ticks = sc.n, sc.ticks
         self.seen = np.zeros(ticks, dtype=bool)
         self.t = np.arange(ticks) * sc.dt
@@ -123,11 +138,18 @@ class Observer:
     def on_alive(self, name: str, up: bool) -> None:
         if up:
             if name in self.ever and name not in self.alive:
-                self.back[name] = self.back.get(name, 0) + 1
+                when, counted = self.left_at.get(name, (-math.inf, False))
+                if self.cut_around(when):
+                    # It never left: our own link was down. Its departure, if counted, is withdrawn.
+                    if counted:
+                        self.gone_at[name].pop()
+                else:
+                    self.back[name] = self.back.get(name, 0) + 1
             self.alive.add(name)
             self.ever.add(name)
         elif name in self.alive:
             self.alive.discard(name)
+            self.left_at[name] = (time.monotonic(), not self.run_over)
             if not self.run_over:  # judged in deaths(): the world's last states may still be on their way
                 self.gone_at.setdefault(name, []).append(self.last_tick)
 
@@ -171,22 +193,37 @@ class Observer:
             "offsets": np.stack([r.offset.positions(t) for r in sc.robots], axis=1).reshape(-1, sc.n, 3),
         }
 
-    def summary(self, wall_s: float) -> dict:
-        out = summarise(self.sc, self.trajectory(), wall_s)
+    def states_missed(self) -> int:
+        """Ticks up to the last one seen whose state the live stream did not bring."""
         k = self.last_tick + 1
-        missed = int(k - self.seen[:k].sum())
-        logger_seen = "logger/0" in self.ever
+        return int(k - self.seen[:k].sum())
+
+    def observed(self) -> dict:
+        """What only an observer knows, added to either summary: the live stream's misses, and
+        who went and came back."""
         deaths = self.deaths()
-        out.update(
-            observed_by="fxswarm attach",
-            complete=self.run_over and k == self.sc.ticks and missed == 0,
-            states_missed=missed,
+        return {
+            "observed_by": "fxswarm attach",
+            "states_missed": self.states_missed(),
             # role/id -> [times gone during the run, times back]: e.g. a killed agent task and its replacement
-            restarts={name: [n, self.back.get(name, 0)] for name, n in sorted(deaths.items())},
-            logger={"seen": logger_seen, "died": deaths.get("logger/0", 0) > 0,
-                    "alive_at_end": "logger/0" in self.alive},
-        )
+            "restarts": {name: [n, self.back.get(name, 0)] for name, n in sorted(deaths.items())},
+            "logger": {"seen": "logger/0" in self.ever, "died": deaths.get("logger/0", 0) > 0,
+                       "alive_at_end": "logger/0" in self.alive},
+        }
+
+    def summary(self, wall_s: float) -> dict:
+        """The run as the live stream told it (without the world's record)."""
+        out = summarise(self.sc, self.trajectory(), wall_s)
+        observed = self.observed()
+        out.update(complete=self.run_over and self.last_tick + 1 == self.sc.ticks and observed["states_missed"] == 0,
+                   **observed, record={"from": "live stream"})
         return out
+
+    def summary_with(self, record: Record) -> dict:
+        """The world's own summary, with what this observer saw added."""
+        digest = hashlib.sha256(record.trajectory).hexdigest()
+        return {**record.summary, **self.observed(),
+                "record": {"from": "world", "ticks": record.summary["ticks"], "sha256": digest}}
 
 
 def fetch_scenario(bus: ZenohBus, out: Path, deadline: float) -> Path:
@@ -252,6 +289,7 @@ def main(args: argparse.Namespace) -> int:
         else:
             print(exc, file=sys.stderr)
         return 1
+    link = Connectivity(bus.session, "fxswarm attach")  # says when its own path to the swarm breaks
     stop = {"signal": None}
 
     def on_signal(signum, _frame) -> None:  # from here on, a signal ends the watch and writes what was seen
@@ -262,7 +300,7 @@ def main(args: argparse.Namespace) -> int:
     recorder = None
     try:
         sc = load_or_exit(args.config or str(fetch_scenario(bus, out, deadline)))
-        obs = Observer(sc)
+        obs = Observer(sc, link.cut_around)
         if args.rerun != "none":
             recorder = open_recorder(sc, args.rerun, out, args.swarm)
 
@@ -287,7 +325,8 @@ def main(args: argparse.Namespace) -> int:
                 settle_until = now + SETTLE_S
             if settle_until is not None and now >= settle_until:
                 break
-            world_gone_since = (world_gone_since or now) if obs.world_gone() else None
+            # Cut off from every router ourselves, we cannot tell whether the world is there.
+            world_gone_since = (world_gone_since or now) if obs.world_gone() and not link.lost else None
             if world_gone_since is not None and now - world_gone_since >= WORLD_GONE_S:
                 print(f"fxswarm attach: the world left at t = {obs.last_t:.2f} s without ending the run; "
                       "writing what it sent", file=sys.stderr)
@@ -302,21 +341,71 @@ def main(args: argparse.Namespace) -> int:
                 print(f"fxswarm attach: t = {obs.last_t:6.2f} / {sc.duration:g} s, {agents}/{sc.n} agents alive, "
                       f"logger {'up' if 'logger/0' in obs.alive else 'DOWN' if 'logger/0' in obs.ever else 'not seen'}",
                       file=sys.stderr)
-        if obs.last_tick < 0:
+        record = world_record(bus, obs, link, stop) if obs.run_over and stop["signal"] is None else None
+        link.close()
+        bus.close()  # our token goes with it: the world serving its record may leave now
+        if record is not None:
+            summary = obs.summary_with(record)
+            write_record(out, summary, record)
+            how = f"the world's own record, {summary['ticks']} ticks; the live stream missed {summary['states_missed']}"
+        elif obs.last_tick < 0:
             print("fxswarm attach: stopped before the world sent anything; nothing written", file=sys.stderr)
             return 1
-        summary = obs.summary(time.monotonic() - started)
-        write_run(out, summary, obs.trajectory())
-        print(f"fxswarm attach: wrote {out} ({obs.last_tick + 1} ticks, {summary['states_missed']} missed; "
-              f"formation error {summary['formation_error_final_m']:.3f} m, nearest object "
-              f"{summary['min_object_distance_m']} m)", file=sys.stderr)
-        if summary["logger"]["seen"] and summary["logger"]["died"]:
-            print("fxswarm attach: warning: the swarm's logger died during the run", file=sys.stderr)
-        return 0 if summary["complete"] else 1
+        else:
+            summary = obs.summary(time.monotonic() - started)
+            write_run(out, summary, obs.trajectory())
+            how = f"from the live stream, {obs.last_tick + 1} ticks, {summary['states_missed']} missed"
+        print(f"fxswarm attach: wrote {out} ({how}; formation error {summary['formation_error_final_m']:.3f} m, "
+              f"nearest object {summary['min_object_distance_m']} m)", file=sys.stderr)
+        say_warnings(summary)
+        return 0 if summary.get("complete") else 1
     finally:
         if recorder is not None:
             recorder.close(timeout_s=10.0)
+        link.close()
         bus.close()
+
+
+def world_record(bus: ZenohBus, obs: Observer, link: Connectivity, stop: dict) -> Record | None:
+    """The world's own record (fxswarm.runtime.record), asked for until it answers, the world
+    leaves, a signal or :data:`RECORD_TIMEOUT_S`; None (said) without it."""
+    give_up_at = time.monotonic() + RECORD_TIMEOUT_S
+
+    def give_up() -> str | None:
+        if stop["signal"] is not None:
+            return f"stopped by {stop['signal']}"
+        if "world/0" not in obs.alive and not link.lost:
+            return "the world left without serving it"
+        if time.monotonic() > give_up_at:
+            return f"no answer in {RECORD_TIMEOUT_S:g} s"
+        return None
+
+    try:
+        return fetch_record(bus.session, f"{bus.root}/{topics.WORLD_RECORD}", give_up, bus.poll)
+    except RecordError as exc:
+        print(f"fxswarm attach: {exc}; writing the run as the live stream told it", file=sys.stderr)
+        return None
+
+
+def write_record(out: Path, summary: dict, record: Record) -> None:
+    """``trajectory.npz`` as the world wrote it (byte for byte), then ``summary.json``."""
+    tmp = out / ".trajectory.npz.tmp"
+    tmp.write_bytes(record.trajectory)
+    tmp.replace(out / "trajectory.npz")
+    write_summary(out, summary)
+
+
+def say_warnings(summary: dict) -> None:
+    """What a user must not miss in the summary: a dead logger, a degraded run, router outages."""
+    if summary["logger"]["seen"] and summary["logger"]["died"]:
+        print("fxswarm attach: warning: the swarm's logger died during the run", file=sys.stderr)
+    degraded = summary.get("degraded") or {}
+    if degraded.get("ticks"):
+        print(f"fxswarm attach: warning: degraded run: {degraded['ticks']} ticks ran with robots the world could not "
+              f"hear (robots {', '.join(map(str, degraded['robots']))})", file=sys.stderr)
+    if summary.get("router_outages"):
+        print(f"fxswarm attach: warning: the world lost every router {len(summary['router_outages'])} time(s)",
+              file=sys.stderr)
 
 
 def open_recorder(sc: Scenario, spec: str, out: Path, swarm: str):

@@ -33,6 +33,7 @@ from fxswarm.core.scenario import Scenario
 from fxswarm.faults.apply import process_counters, wrap_for_process
 from fxswarm.faults.plan import CLI_HELP as FAULT_HELP
 from fxswarm.faults.plan import PLAN_ENV, FaultPlan
+from fxswarm.runtime.connectivity import Connectivity
 from fxswarm.runtime.numbers import non_negative, positive
 from fxswarm.runtime.output import prepare_run_folder
 from fxswarm.runtime.config import process_plan_or_exit
@@ -134,6 +135,12 @@ class RoleProcess:
         except ConnectError as exc:
             print(exc, file=sys.stderr)
             raise SystemExit(1) from None
+        # Says at once when every router is lost, and when one is back (no per-tick cost).
+        self.connectivity = Connectivity(self.bus.session, who, now=self.sim_now())
+
+    def sim_now(self):
+        """``() -> (simulation time s, tick)`` for the outage record, or None (role-specific)."""
+        return None
 
     # --- signals and liveness ------------------------------------------------------------
 
@@ -273,6 +280,7 @@ class RoleProcess:
     def counters(self) -> dict:
         c = self.bus.counters.as_dict()
         c["stop_reason"] = self.stop_reason or "done"
+        c["router_outages"] = self.connectivity.report()
         c.update(process_counters(self.node))  # per-link fault counts, if a fault filter is in
         return c
 
@@ -292,6 +300,7 @@ class RoleProcess:
             print(f"fxswarm {self.role}: could not write its counters to {folder}: {exc}", file=sys.stderr)
 
     def close(self) -> None:
+        self.connectivity.close()  # first: the session's own closing is no outage
         self.bus.close()
 
     def finish(self, extra: dict | None = None) -> None:

@@ -7,7 +7,7 @@ rules cannot drift from what the code subscribes to:
 ========== ======================================= =============================================
 name       may put                                 may hear (subscribe, and be sent)
 ========== ======================================= =============================================
-world      ``world/**``                            ``WorldNode.subscriptions()`` (every command)
+world      ``world/**``; answers ``world/record``  ``WorldNode.subscriptions()`` (every command)
 leader     ``leader/state``                        ``LeaderNode.subscriptions()`` (the first robot's
                                                    sensing, for the tick)
 agent-<i>  ``agent/<i>/**``                        ``AgentNode(i).subscriptions()``: its sensing,
@@ -15,7 +15,8 @@ agent-<i>  ``agent/<i>/**``                        ``AgentNode(i).subscriptions(
                                                    on them), the leader if pinned
 logger     nothing                                 everything of the swarm
 observer   nothing                                 ``world/state`` (progress line, health, ``fxswarm
-                                                   attach``), and the router's answer to ``scenario``
+                                                   attach``), the router's answer to ``scenario``
+                                                   and the world's to ``world/record``
 router     nothing                                 nothing
 ========== ======================================= =============================================
 
@@ -23,7 +24,9 @@ Liveliness: each process may declare only its own token (``alive/<role>/<id>``;
 the world also ``run/over``; an observer any ``alive/observer/<id>``, which a world started
 with ``--wait-for observer/<id>`` waits for); every process may watch and query tokens (who is
 up is not secret inside the swarm, and the health check needs it).
-Subscriber declarations travel to every process (``declare_subscriber``
+Queries: only the observer may ask (``scenario``, ``world/record``), and only the world may
+answer ``world/record`` (declare the queryable, be sent the query, reply): a robot can neither
+read the run's record nor forge it. Subscriber declarations travel to every process (``declare_subscriber``
 egress): a publisher sends only where someone listens.
 
 A put must pass twice: ingress at the sender's link (may it say this?) and
@@ -49,19 +52,20 @@ def process_names(scenario: Scenario) -> list[str]:
 
 
 def rights(scenario: Scenario) -> dict[str, dict[str, list[str]]]:
-    """``{name: {"put": topics, "hear": patterns, "tokens": topics, "ask": topics}}``, topics relative to
-    the swarm; ``ask``: keys it may query (and be sent the replies of)."""
+    """``{name: {"put": topics, "hear": patterns, "tokens": topics, "ask": topics, "answer": topics}}``,
+    topics relative to the swarm; ``ask``: keys it may query (and be sent the replies of); ``answer``:
+    keys it may serve (declare a queryable, be sent the queries, reply)."""
     out: dict[str, dict[str, list[str]]] = {
         "router": {"put": [], "hear": [], "tokens": []},
         "world": {"put": ["world/**"], "hear": WorldNode(scenario, record=False).subscriptions(),
-                  "tokens": [topics.alive_topic("world", 0), topics.RUN_OVER]},
+                  "tokens": [topics.alive_topic("world", 0), topics.RUN_OVER], "answer": [topics.WORLD_RECORD]},
         "leader": {"put": [topics.LEADER_STATE], "hear": LeaderNode(scenario).subscriptions(),
                    "tokens": [topics.alive_topic("leader", 0)]},
         "logger": {"put": [], "hear": ["**"], "tokens": [topics.alive_topic("logger", 0)]},
         # `fxswarm attach` is an observer: it reads the world's states, asks the router for the
         # scenario and announces itself, so that a world may wait for it (docs/security.md).
         "observer": {"put": [], "hear": [topics.WORLD_STATE], "tokens": [topics.alive_topic("observer", "*")],
-                     "ask": [topics.SCENARIO]},
+                     "ask": [topics.SCENARIO, topics.WORLD_RECORD]},
     }
     for r in scenario.robots:
         out[f"agent-{r.id}"] = {"put": [f"agent/{r.id}/**"],
@@ -117,6 +121,12 @@ def access_control(scenario: Scenario, swarm: str = "*") -> dict:
             rules.append({"id": f"{name}-answer", "messages": ["reply"], "flows": ["egress"],
                           "permission": "allow", "key_exprs": keys(r["ask"])})
             mine += [f"{name}-ask", f"{name}-answer"]
+        if r.get("answer"):
+            rules.append({"id": f"{name}-serve", "messages": ["declare_queryable", "reply"], "flows": ["ingress"],
+                          "permission": "allow", "key_exprs": keys(r["answer"])})
+            rules.append({"id": f"{name}-asked", "messages": ["query"], "flows": ["egress"],
+                          "permission": "allow", "key_exprs": keys(r["answer"])})
+            mine += [f"{name}-serve", f"{name}-asked"]
         if mine:
             policies.append({"id": f"p-{name}", "rules": mine, "subjects": [subject]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,

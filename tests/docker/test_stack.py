@@ -10,6 +10,7 @@ stack rm`` and nothing of the stack is left on the engine.
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import shutil
@@ -123,6 +124,9 @@ def test_stack_runs_paper_fast_survives_a_killed_agent_and_attach_collects_the_r
         # The world's own run folder, from the stack's runs volume.
         own = json.loads(sh("docker", "run", "--rm", "--user", "0", "-v", f"{stack}_runs:/r", "--entrypoint", "cat",
                             f"fxswarm-world:{TAG}", "/r/run/summary.json"))
+        own_npz = subprocess.run(["docker", "run", "--rm", "--user", "0", "-v", f"{stack}_runs:/r", "--entrypoint",
+                                  "cat", f"fxswarm-world:{TAG}", "/r/run/trajectory.npz"],
+                                 capture_output=True, timeout=120, check=True).stdout
     finally:
         if watch is not None:
             watch.close()
@@ -136,10 +140,19 @@ def test_stack_runs_paper_fast_survives_a_killed_agent_and_attach_collects_the_r
     recording_bytes = (seen / "recording.rrd").stat().st_size if (seen / "recording.rrd").exists() else 0
     with np.load(seen / "trajectory.npz") as traj:
         p_shape = traj["p"].shape
+    # attach wrote the world's own record (world/record), not what the live stream brought: every tick.
+    same_bytes = (seen / "trajectory.npz").read_bytes() == own_npz
+    with np.load(seen / "trajectory.npz") as mine, np.load(io.BytesIO(own_npz)) as theirs:
+        differ = sorted(k for k in set(mine.files) | set(theirs.files)
+                        if k not in mine.files or k not in theirs.files or not np.array_equal(mine[k], theirs[k]))
     shutil.rmtree(folder, ignore_errors=True)
     assert left == [], left
     # Within the bounds `fxswarm run` meets on paper-fast, and the same figures the world computed.
-    assert summary["complete"] and summary["states_missed"] == 0
+    # states_missed counts what the live stream dropped under load (199 of 4000 once): the folder is whole anyway.
+    assert summary["complete"] and summary["record"]["from"] == "world", summary.get("record")
+    assert same_bytes and differ == [], differ
+    assert summary["ticks"] == own["ticks"] == 10_000 and own["complete"]
+    assert {k: v for k, v in summary.items() if k in own} == own  # the world's summary, whole
     assert summary["restarts"] == {"agent/3": [1, 1]}, summary["restarts"]
     assert summary["logger"] == {"seen": True, "died": False, "alive_at_end": summary["logger"]["alive_at_end"]}
     for key in ("ticks", "min_object_distance_m", "formation_error_final_m", "estimate_error_final_m"):

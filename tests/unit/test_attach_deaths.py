@@ -37,3 +37,24 @@ def test_a_killed_process_counts_whether_or_not_it_comes_back():
     obs.last_tick = obs.sc.ticks - 1
     assert obs.deaths() == {"agent/3": 1, "agent/4": 1}
     assert obs.summary(1.0)["restarts"] == {"agent/3": [1, 1], "agent/4": [1, 0]}
+
+
+def test_tokens_that_go_and_come_back_with_our_own_link_are_nobodys_death():
+    """attach's own router blinked (issue 29): every token went with it and came back; a process
+    that really died meanwhile still counts."""
+    cut = {"now": False}
+    obs = Observer(load(PAPER_FAST), cut_around=lambda _when: cut["now"])
+    obs.last_tick = 10
+    for name in ("agent/1", "agent/2", "world/0"):
+        obs.on_alive(name, True)
+    obs.on_alive("agent/2", False)  # killed, before our link went
+    cut["now"] = True
+    for name in ("agent/1", "world/0"):
+        obs.on_alive(name, False)  # handled a little before the transport's own event, even
+    obs.last_tick = 500
+    for name in ("agent/1", "world/0"):
+        obs.on_alive(name, True)
+    cut["now"] = False
+    obs.last_tick = obs.sc.ticks - 1
+    assert obs.deaths() == {"agent/2": 1}
+    assert obs.observed()["restarts"] == {"agent/2": [1, 0]}

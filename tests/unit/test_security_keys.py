@@ -194,23 +194,33 @@ def test_rights_follow_the_nodes_subscriptions_and_the_graph(sc):
     assert sorted(n for names in subjects.values() for n in names) == sorted(process_names(sc))
 
 
-def test_the_observer_may_ask_the_router_for_the_scenario_and_announce_itself_and_no_more(sc):
-    """`fxswarm attach --secure` shows the observer's certificate: it reads world/state, asks for the
-    scenario (a query in, its reply out) and declares an observer token; it says nothing else."""
+def test_the_observer_may_ask_for_the_scenario_and_the_record_and_announce_itself_and_no_more(sc):
+    """`fxswarm attach --secure` shows the observer's certificate: it reads world/state, asks the router
+    for the scenario and the world for its record (a query in, its reply out) and declares an observer
+    token; it says nothing else. Only the world may answer world/record (issue 29)."""
     r = rights(sc)
-    assert r["observer"] == {"put": [], "hear": ["world/state"], "tokens": ["alive/observer/*"], "ask": ["scenario"]}
+    asked = ["fxswarm/s/scenario", "fxswarm/s/world/record"]
+    assert r["observer"] == {"put": [], "hear": ["world/state"], "tokens": ["alive/observer/*"],
+                             "ask": ["scenario", "world/record"]}
     assert all(not rights_.get("ask") for name, rights_ in r.items() if name != "observer")
+    assert {name: rights_["answer"] for name, rights_ in r.items() if rights_.get("answer")} == {"world": ["world/record"]}
     acl = access_control(sc, "s")
     by_id = {rule["id"]: rule for rule in acl["rules"]}
     assert by_id["observer-ask"] == {"id": "observer-ask", "messages": ["query"], "flows": ["ingress"],
-                                     "permission": "allow", "key_exprs": ["fxswarm/s/scenario"]}
+                                     "permission": "allow", "key_exprs": asked}
     assert by_id["observer-answer"] == {"id": "observer-answer", "messages": ["reply"], "flows": ["egress"],
-                                        "permission": "allow", "key_exprs": ["fxswarm/s/scenario"]}
+                                        "permission": "allow", "key_exprs": asked}
+    assert by_id["world-serve"] == {"id": "world-serve", "messages": ["declare_queryable", "reply"],
+                                    "flows": ["ingress"], "permission": "allow", "key_exprs": ["fxswarm/s/world/record"]}
+    assert by_id["world-asked"] == {"id": "world-asked", "messages": ["query"], "flows": ["egress"],
+                                    "permission": "allow", "key_exprs": ["fxswarm/s/world/record"]}
     assert by_id["observer-token"]["key_exprs"] == ["fxswarm/s/alive/observer/*"]
-    # No other rule lets anyone query, nor be sent a reply outside liveliness.
+    # No other rule lets anyone query, serve, nor be sent a reply outside liveliness.
     queries = [rule["id"] for rule in acl["rules"] if "query" in rule["messages"]]
     replies = [rule["id"] for rule in acl["rules"] if "reply" in rule["messages"]]
-    assert queries == ["observer-ask"] and sorted(replies) == ["liveliness-news", "observer-answer"]
+    serves = [rule["id"] for rule in acl["rules"] if "declare_queryable" in rule["messages"]]
+    assert sorted(queries) == ["observer-ask", "world-asked"] and serves == ["world-serve"]
+    assert sorted(replies) == ["liveliness-news", "observer-answer", "world-serve"]
     (mine,) = [p for p in acl["policies"] if p["id"] == "p-observer"]
     assert sorted(mine["rules"]) == ["observer-answer", "observer-ask", "observer-hear", "observer-subscribe",
                                      "observer-token"]
