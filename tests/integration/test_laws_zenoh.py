@@ -1,0 +1,79 @@
+"""A user's law beside the scenario, flown as one process per robot over real Zenoh sessions
+(issue 27): lock-step equals `fxswarm sim` bit for bit, with and without a fault plan, and a
+law that fails is counted the same way in both."""
+
+from __future__ import annotations
+
+import shutil
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from fxswarm.testing import dump_toml
+
+ROOT = Path(__file__).resolve().parents[2]
+EXAMPLE = ROOT / "configs" / "examples" / "tether"
+FLAKY = (ROOT / "tests" / "unit" / "data" / "flaky_law.py").read_text()  # see tests/unit/test_laws.py
+
+#: Link faults, a partition (robot 3 hears nobody: the node extrapolates, the law only steers)
+#: and a leader outage, all within a short run.
+FAULTS = {
+    "seed": 11,
+    "links": [
+        {"link": "agent:*->agent:*", "kinds": ["estimate"], "drop": 0.2, "delay": 0.03, "jitter": 0.02,
+         "duplicate": 0.1},
+        {"link": "leader->agent:1", "drop": 0.3, "delay": 0.01},
+    ],
+    "partitions": [{"start": 0.6, "end": 0.9, "isolate": [3]}],
+    "leader_outages": [{"start": 1.0, "end": 1.2}],
+}
+
+
+def tether_scenario(folder: Path, duration: float, **tables) -> Path:
+    """The shipped example (tether.toml and tether.py) copied into ``folder``, shortened."""
+    shutil.copy(EXAMPLE / "tether.py", folder / "tether.py")
+    data = tomllib.loads((EXAMPLE / "tether.toml").read_text())
+    data["scenario"]["duration"] = duration
+    data.update(tables)
+    path = folder / "tether.toml"
+    path.write_text(dump_toml(data))
+    return path
+
+
+@pytest.mark.zenoh
+def test_lockstep_user_law_is_bit_identical_to_the_sim(launch_swarm, tmp_path):
+    swarm = launch_swarm(tether_scenario(tmp_path, 1.5))
+    summary = swarm.wait_done(timeout=180)
+    expected = swarm.assert_matches_sim()
+    assert summary["complete"] and summary["missed_ticks"] == 0
+    assert summary["law"] == expected["law"] == {"name": "tether:Tether", "errors": {}}
+
+
+@pytest.mark.zenoh
+def test_lockstep_user_law_under_a_fault_plan_matches_the_sim(launch_swarm, tmp_path):
+    swarm = launch_swarm(tether_scenario(tmp_path, 1.5, faults=FAULTS))
+    summary = swarm.wait_done(timeout=180)
+    expected = swarm.assert_matches_sim()
+    assert summary["complete"] and summary["missed_ticks"] == 0
+    assert summary["faults"]["degraded_ticks"] == expected["faults"]["degraded_ticks"]
+    assert summary["faults"]["degraded_ticks"]["extrapolating"].get("3", 0) > 0  # the partition bit
+    assert summary["faults"]["links"]["agent:1->agent:2/estimate"]["dropped"] > 0
+
+
+@pytest.mark.zenoh
+def test_a_failing_law_is_counted_alike_over_zenoh_and_the_run_goes_on(launch_swarm, tmp_path):
+    (tmp_path / "flakylaw_z.py").write_text(FLAKY)
+    data = tomllib.loads((ROOT / "configs" / "paper-fast.toml").read_text())
+    data["scenario"]["duration"] = 1.5
+    data["controller"] = {"law": "flakylaw_z:Flaky"}
+    config = tmp_path / "flaky.toml"
+    config.write_text(dump_toml(data))
+    swarm = launch_swarm(config)
+    summary = swarm.wait_done(timeout=180)
+    expected = swarm.assert_matches_sim()
+    assert summary["complete"] and summary["missed_ticks"] == 0
+    assert summary["law"] == expected["law"]
+    assert summary["law"]["errors"]["2"] == {"ticks": 30, "first": "velocity: RuntimeError: robot 2 gave up at t = 0.50"}
+    assert set(summary["law"]["errors"]) == {"2", "3", "5"}
+    assert all(c["invalid"] == 0 for c in summary["processes"].values())
