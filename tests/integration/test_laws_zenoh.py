@@ -11,23 +11,11 @@ from pathlib import Path
 import pytest
 
 from fxswarm.testing import dump_toml
+from support import SHORT_RUN_FAULTS as FAULTS
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "configs" / "examples" / "tether"
 FLAKY = (ROOT / "tests" / "unit" / "data" / "flaky_law.py").read_text()  # see tests/unit/test_laws.py
-
-#: Link faults, a partition (robot 3 hears nobody: the node extrapolates, the law only steers)
-#: and a leader outage, all within a short run.
-FAULTS = {
-    "seed": 11,
-    "links": [
-        {"link": "agent:*->agent:*", "kinds": ["estimate"], "drop": 0.2, "delay": 0.03, "jitter": 0.02,
-         "duplicate": 0.1},
-        {"link": "leader->agent:1", "drop": 0.3, "delay": 0.01},
-    ],
-    "partitions": [{"start": 0.6, "end": 0.9, "isolate": [3]}],
-    "leader_outages": [{"start": 1.0, "end": 1.2}],
-}
 
 
 def tether_scenario(folder: Path, duration: float, **tables) -> Path:
