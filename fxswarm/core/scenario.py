@@ -418,9 +418,10 @@ def _law(scenario: Scenario, cf: _Fields) -> None:
         raise ScenarioError(f"{scenario.source}: {cf.sub_path('law')}: {exc}") from None
 
 
-def parse(data: dict, source: str = "<scenario>", folder: str | None = None) -> Scenario:
+def parse(data: dict, source: str = "<scenario>", folder: str | None = None, *, check_law: bool = True) -> Scenario:
     """Validate a parsed TOML document into a :class:`Scenario`. ``folder``: where a law module
-    named ``module:Class`` is looked for first (default: the folder of ``source``, if a file)."""
+    named ``module:Class`` is looked for first (default: the folder of ``source``, if a file);
+    ``check_law=False``: the law is not imported (for an observer, which flies nothing)."""
     top = _Fields(source, data)
     top.check_known({"scenario", "gains", "estimator", "graph", "leader", "formation", "robots",
                      "obstacles", "faults", "controller", "logging", "zenoh"})
@@ -549,7 +550,8 @@ def parse(data: dict, source: str = "<scenario>", folder: str | None = None) -> 
         law_params=dict(cf.table_at("params").table),
         law_folder=folder if folder is not None else _folder_of(source),
     )
-    _law(scenario, cf)
+    if check_law:
+        _law(scenario, cf)
     if observer is not None:
         accel = max_acceleration_inf(leader)
         if observer.K3 < accel:
@@ -572,7 +574,7 @@ class ScenarioWarning(UserWarning):
     """A scenario is valid but breaks an assumption of the paper."""
 
 
-def load(path: str | FilePath) -> Scenario:
+def load(path: str | FilePath, *, check_law: bool = True) -> Scenario:
     """Read and validate a scenario file; raises :class:`ScenarioError` naming file and field."""
     source = str(path)
     try:
@@ -584,7 +586,7 @@ def load(path: str | FilePath) -> Scenario:
         raise ScenarioError(f"{source}: cannot read the scenario file: {exc.strerror}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{source}: not valid TOML: {exc}") from None
-    return parse(data, source, str(FilePath(path).parent))
+    return parse(data, source, str(FilePath(path).parent), check_law=check_law)
 
 
 def _folder_of(source: str) -> str | None:

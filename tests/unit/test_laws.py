@@ -282,3 +282,12 @@ def test_sweep_refuses_a_law_that_cannot_fly_before_it_starts(tmp_path):
     assert proc.returncode == 2
     assert f"{PAPER_FAST}: controller.law: cannot import 'nosuch'" in proc.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_an_observer_loads_a_scenario_whose_law_it_cannot_import(tmp_path):
+    """`fxswarm attach` fetches the scenario's text from the router: it flies nothing, so the
+    law module, which stays with the robots, is not needed there."""
+    path = scenario_beside(tmp_path, "lawelsewhere:Law")
+    with pytest.raises(ScenarioError, match="controller.law: cannot import 'lawelsewhere'"):
+        load(path)
+    assert load(path, check_law=False).law == "lawelsewhere:Law"
