@@ -336,7 +336,9 @@ class AgentNode:
             v, dph = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]  # stop, and keep the estimate
             if self.law_error_first is None:
                 self.law_error_first = law_error
-        v, limited = speed_limited(v, self.sc.v_max)
+        limited = False
+        if self.sc.v_max is not None:  # not in the paper: [scenario] v_max, for every law alike
+            v, limited = speed_limited(v, self.sc.v_max)
         avoid_active = po is not None and in_repulsive_zone(p, po, self.sc.d)
         flags = self._degraded_flags(stale_neighbour, no_leader, hears, now, law_error is not None)
         if hears:

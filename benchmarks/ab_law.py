@@ -9,10 +9,13 @@ the trees (A B, then B A):
 - lock-step ticks/s of configs/paper-fast.toml over real processes and Zenoh
   (bench_runtime's ``lockstep``, as benchmarks/ab_runtime.py runs it), with the
   message floor of bench_floor.py measured in the same round;
-- ``fxswarm sim`` of configs/paper-fast.toml (4000 ticks, in-process): wall seconds,
-  with a CPU floor measured in the same round (a fixed pure-Python float workload,
-  the kind of work the agent's law does), so a change in the machine's load shows as a
-  change in the floor, not in the trees.
+- ``fxswarm sim`` of configs/paper-fast.toml (4000 ticks, in-process): wall seconds and
+  CPU seconds of the process (on a machine shared by many, wall time is mostly waiting for a
+  core: the CPU seconds are the figure to judge), with a CPU floor measured in the same
+  round (a fixed pure-Python float workload, the kind of work the agent's law does), so a
+  change in the machine's load shows as a change in the floor, not in the trees;
+- the agent's ``act`` alone (where the law is called), thread CPU microseconds per act, the
+  least over batches, averaged over the six robots: the figure least moved by load.
 
 Reported: every round, the medians, and per figure this tree / baseline as the median of
 the per-round ratios (and of the ratios to the floor). BASELINE_TREE: e.g.
@@ -40,10 +43,28 @@ from fxswarm.core.scenario import load
 from fxswarm.launch.sim import Simulation
 sc = load("configs/paper-fast.toml")
 sim = Simulation(sc)
-start = time.perf_counter()
+start, cpu = time.perf_counter(), time.process_time()
 sim.run()
-wall = time.perf_counter() - start
-print(json.dumps({"sim_wall_s": wall, "sim_ticks_per_s": sc.ticks / wall, "load_avg": os.getloadavg()[0]}))
+wall, cpu = time.perf_counter() - start, time.process_time() - cpu
+# The agent's act alone (the law's call site), per robot: the least thread CPU time per act over
+# 30 batches of 200 acts, after 9 s of flight (robots near obstacles: both behaviours at work).
+import tomllib
+from fxswarm.core.scenario import parse
+raw = tomllib.load(open("configs/paper-fast.toml", "rb"))
+raw["scenario"]["duration"] = 9.0
+held = Simulation(parse(raw, "act"))
+held.run()
+acts = []
+for agent in held.agents:
+    batches = []
+    for _ in range(30):
+        c0 = time.thread_time()
+        for _ in range(200):
+            agent.act(0.01)
+        batches.append((time.thread_time() - c0) / 200 * 1e6)
+    acts.append(min(batches))
+print(json.dumps({"sim_wall_s": wall, "sim_cpu_s": cpu, "sim_ticks_per_s": sc.ticks / wall,
+                  "act_cpu_us": sum(acts) / len(acts), "load_avg": os.getloadavg()[0]}))
 """
 
 
@@ -89,7 +110,7 @@ def main() -> int:
         floor = ab_runtime.measure_floor("lockstep", args.lockstep_ticks)
         rounds["floor"].append({"ticks_per_s": floor["ticks_per_s"], "load_avg": floor["load_avg"]} | cpu_floor())
         print(i, "floor", json.dumps(rounds["floor"][-1]), file=sys.stderr)
-    keys = ("ticks_per_s", "sim_wall_s", "sim_ticks_per_s")
+    keys = ("ticks_per_s", "cpu_ms_per_tick", "sim_wall_s", "sim_cpu_s", "sim_ticks_per_s", "act_cpu_us")
     result = {
         "benchmark": "the paper's law through the law API (this) against the tree before it (baseline), "
                      "configs/paper-fast.toml, rounds interleaved A B / B A",
@@ -107,10 +128,10 @@ def main() -> int:
                        "median": statistics.median(a["sim_wall_s"] / f["cpu_floor_s"]
                                                    for a, f in zip(rounds[name], rounds["floor"]))}}
             for name in trees},
-        "target": "this/baseline within 5 % (lock-step ticks/s >= 0.95, sim wall s <= 1.05)",
+        "target": "this/baseline within 5 % (lock-step ticks/s >= 0.95, sim CPU s <= 1.05)",
     }
     ratios = result["this_over_baseline"]
-    result["target_met"] = ratios["ticks_per_s"]["median"] >= 0.95 and ratios["sim_wall_s"]["median"] <= 1.05
+    result["target_met"] = ratios["ticks_per_s"]["median"] >= 0.95 and ratios["sim_cpu_s"]["median"] <= 1.05
     write_json(args.out, result)
     print(json.dumps({k: result[k] for k in ("median", "this_over_baseline", "vs_floor", "target_met")}, indent=2))
     return 0
