@@ -42,10 +42,10 @@ def scenario_beside(folder: Path, law: str | None, duration: float = 2.0, params
     return path
 
 
-def tether_beside(folder: Path, duration: float, **tables) -> Path:
+def tether_beside(folder: Path, duration: float, name: str = "case", **tables) -> Path:
     shutil.copy(EXAMPLE / "tether.py", folder / "tether.py")
     example = tomllib.loads((EXAMPLE / "tether.toml").read_text())["controller"]
-    return scenario_beside(folder, example["law"], duration, example["params"], **tables)
+    return scenario_beside(folder, example["law"], duration, example["params"], name, **tables)
 
 
 # --- the user's law, flown by fxswarm sim, against the same law written in matrix form ------------
@@ -291,3 +291,20 @@ def test_an_observer_loads_a_scenario_whose_law_it_cannot_import(tmp_path):
     with pytest.raises(ScenarioError, match="controller.law: cannot import 'lawelsewhere'"):
         load(path)
     assert load(path, check_law=False).law == "lawelsewhere:Law"
+
+
+def test_the_speed_limit_is_the_nodes_for_every_law(tmp_path):
+    """[scenario] v_max scales any law's command down to the limit (the built-in's as before)."""
+    paths = {"tether": tether_beside(tmp_path, duration=1.0, name="limited")}
+    for name, path in paths.items():
+        data = tomllib.loads(path.read_text())
+        data["scenario"]["v_max"] = 0.5
+        path.write_text(dump_toml(data))
+    base = tomllib.loads(PAPER_FAST.read_text())
+    base["scenario"] |= {"duration": 1.0, "v_max": 0.5}
+    for sc in (load(paths["tether"]), parse(base, "paper")):
+        sim = Simulation(sc)
+        summary = sim.run()
+        speed = np.linalg.norm(sim.trajectory()["v"], axis=2)
+        assert summary["speed_limited_ticks"] > 0, sc.law
+        assert speed.max() <= 0.5 * (1 + 1e-12) and speed.max() > 0.49, sc.law
