@@ -92,46 +92,69 @@ def ratio(this: list[dict], base: list[dict], key: str) -> dict:
     return {"median": statistics.median(r), "range": [min(r), max(r)]}
 
 
+def rounds_from_log(path: Path) -> dict[str, list]:
+    """The rounds a stopped run printed on stderr (``ROUND NAME JSON`` lines), whole rounds only."""
+    rounds: dict[str, list] = {"baseline": [], "this": [], "floor": []}
+    for line in path.read_text().splitlines():
+        parts = line.split(" ", 2)
+        if len(parts) == 3 and parts[0].isdigit() and parts[1] in rounds:
+            rounds[parts[1]].append(json.loads(parts[2]))
+    whole = min(len(rows) for rows in rounds.values())
+    return {name: rows[:whole] for name, rows in rounds.items()}
+
+
+def summary(rounds: dict[str, list], trees: dict[str, Path], command: str) -> dict:
+    """Medians, per-round ratios this/baseline and to the floors, and the target."""
+    keys = ("ticks_per_s", "cpu_ms_per_tick", "sim_wall_s", "sim_cpu_s", "sim_ticks_per_s", "act_cpu_us")
+    result = {
+        "benchmark": "the paper's law through the law API (this) against the tree before it (baseline), "
+                     "configs/paper-fast.toml, rounds interleaved A B / B A",
+        "command": command,
+        "machine": machine(),
+        "trees": {k: str(v) for k, v in trees.items()},
+        "rounds": rounds,
+        "median": {name: ab_runtime.medians(rows) for name, rows in rounds.items()},
+        # per round this/baseline (same load): > 1 is faster for ticks/s, slower for seconds and us
+        "this_over_baseline": {k: ratio(rounds["this"], rounds["baseline"], k) for k in keys
+                               if all(k in row for row in rounds["this"] + rounds["baseline"])},
+        "vs_floor": {
+            name: {"lockstep_ticks_per_s": ratio(rounds[name], rounds["floor"], "ticks_per_s"),
+                   "sim_cpu_s_over_cpu_floor": ratio(rounds[name], [
+                       {"sim_cpu_s": f["cpu_floor_s"]} for f in rounds["floor"]], "sim_cpu_s")}
+            for name in trees},
+        "target": "this/baseline within 5 % (lock-step ticks/s >= 0.95, sim CPU s <= 1.05)",
+    }
+    ratios = result["this_over_baseline"]
+    result["target_met"] = ratios["ticks_per_s"]["median"] >= 0.95 and ratios["sim_cpu_s"]["median"] <= 1.05
+    return result
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("baseline", type=Path, help="another checkout with its own .venv")
     p.add_argument("--rounds", type=int, default=5)
     p.add_argument("--lockstep-ticks", type=int, default=2000)
     p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "ab_law.json"))
+    p.add_argument("--from-log", type=Path, default=None, metavar="LOG",
+                   help="no runs: summarise the whole rounds a stopped run wrote to its stderr LOG")
     args = p.parse_args()
     trees = {"baseline": args.baseline.resolve(), "this": ROOT}
-    rounds: dict[str, list] = {"baseline": [], "this": [], "floor": []}
-    for i in range(args.rounds):
-        order = list(trees.items()) if i % 2 == 0 else list(trees.items())[::-1]
-        for name, tree in order:
-            row = ab_runtime.measure(tree, "lockstep", args.lockstep_ticks) | sim(tree)
-            rounds[name].append(row)
-            print(i, name, json.dumps(row), file=sys.stderr)
-        floor = ab_runtime.measure_floor("lockstep", args.lockstep_ticks)
-        rounds["floor"].append({"ticks_per_s": floor["ticks_per_s"], "load_avg": floor["load_avg"]} | cpu_floor())
-        print(i, "floor", json.dumps(rounds["floor"][-1]), file=sys.stderr)
-    keys = ("ticks_per_s", "cpu_ms_per_tick", "sim_wall_s", "sim_cpu_s", "sim_ticks_per_s", "act_cpu_us")
-    result = {
-        "benchmark": "the paper's law through the law API (this) against the tree before it (baseline), "
-                     "configs/paper-fast.toml, rounds interleaved A B / B A",
-        "command": f"python benchmarks/ab_law.py {args.baseline} --rounds {args.rounds} "
-                   f"--lockstep-ticks {args.lockstep_ticks}",
-        "machine": machine(),
-        "trees": {k: str(v) for k, v in trees.items()},
-        "rounds": rounds,
-        "median": {name: ab_runtime.medians(rows) for name, rows in rounds.items()},
-        # per round this/baseline (same load): > 1 is faster for ticks/s, slower for wall seconds
-        "this_over_baseline": {k: ratio(rounds["this"], rounds["baseline"], k) for k in keys},
-        "vs_floor": {
-            name: {"lockstep_ticks_per_s": ratio(rounds[name], rounds["floor"], "ticks_per_s"),
-                   "sim_wall_s_over_cpu_floor": {
-                       "median": statistics.median(a["sim_wall_s"] / f["cpu_floor_s"]
-                                                   for a, f in zip(rounds[name], rounds["floor"]))}}
-            for name in trees},
-        "target": "this/baseline within 5 % (lock-step ticks/s >= 0.95, sim CPU s <= 1.05)",
-    }
-    ratios = result["this_over_baseline"]
-    result["target_met"] = ratios["ticks_per_s"]["median"] >= 0.95 and ratios["sim_cpu_s"]["median"] <= 1.05
+    command = f"python benchmarks/ab_law.py {args.baseline} --rounds {args.rounds} --lockstep-ticks {args.lockstep_ticks}"
+    if args.from_log is not None:
+        rounds = rounds_from_log(args.from_log)
+        command += f"  (stopped after {len(rounds['floor'])} whole rounds; summarised with --from-log)"
+    else:
+        rounds = {"baseline": [], "this": [], "floor": []}
+        for i in range(args.rounds):
+            order = list(trees.items()) if i % 2 == 0 else list(trees.items())[::-1]
+            for name, tree in order:
+                row = ab_runtime.measure(tree, "lockstep", args.lockstep_ticks) | sim(tree)
+                rounds[name].append(row)
+                print(i, name, json.dumps(row), file=sys.stderr)
+            floor = ab_runtime.measure_floor("lockstep", args.lockstep_ticks)
+            rounds["floor"].append({"ticks_per_s": floor["ticks_per_s"], "load_avg": floor["load_avg"]} | cpu_floor())
+            print(i, "floor", json.dumps(rounds["floor"][-1]), file=sys.stderr)
+    result = summary(rounds, trees, command)
     write_json(args.out, result)
     print(json.dumps({k: result[k] for k in ("median", "this_over_baseline", "vs_floor", "target_met")}, indent=2))
     return 0
