@@ -323,8 +323,15 @@ class AgentNode:
         p_i0, dp_i0 = self.offset.state_lists(s.t)
         p = s.p.tolist()
         po = None if s.po is None else s.po.tolist()
-        view = self._refresh_view(s.t, dt, p, rows, weights, self.pinned and not no_leader, p_i0, dp_i0, po,
-                                  None if s.vo is None else s.vo.tolist())
+        view = self.view  # refreshed in place (per tick, per robot: the hot path)
+        view.t, view.dt, view.heard_leader = s.t, dt, self.pinned and not no_leader
+        vh = self.vh.tolist() if self.feedforward else None  # eqs. (11ff), (v2ff)
+        nearest = None if po is None else (po, _ZERO if s.vo is None else s.vo.tolist())
+        if self.law_floats:
+            view.p, view.ph, view.offset, view.offset_rate = p, self.ph.tolist(), p_i0, dp_i0
+            view.rows, view.weights, view.vh, view.nearest = rows, weights, vh, nearest
+        else:
+            self._numpy_view(p, rows, weights, p_i0, dp_i0, vh, nearest)
         law_error = None
         try:
             method = "estimate_rate"  # hearing nobody: the node extrapolates, the law only steers
@@ -371,25 +378,14 @@ class AgentNode:
         self.last_command = self._command_topic, cmd
         return self.last_command
 
-    def _refresh_view(self, t: float, dt: float, p: list, rows: list, weights: list, heard_leader: bool,
-                      offset: list, offset_rate: list, po: list | None, vo: list | None) -> LawView:
-        """This tick's :class:`LawView` (vectors as lists of floats, or arrays for a numpy law)."""
-        view = self.view
-        view.t, view.dt, view.heard_leader = t, dt, heard_leader
-        ph = self.ph.tolist()
-        vh = self.vh.tolist() if self.feedforward else None  # eqs. (11ff), (v2ff)
-        nearest = None if po is None else (po, _ZERO if vo is None else vo)
-        if self.law_floats:
-            view.p, view.ph, view.offset, view.offset_rate, view.rows, view.weights = p, ph, offset, offset_rate, \
-                rows, weights
-            view.vh, view.nearest = vh, nearest
-        else:
-            a = np.array
-            view.p, view.ph, view.offset, view.offset_rate = a(p), a(ph), a(offset), a(offset_rate)
-            view.rows, view.weights = a(rows, dtype=float).reshape(-1, 3), a(weights, dtype=float)
-            view.vh = None if vh is None else a(vh)
-            view.nearest = None if nearest is None else (a(nearest[0]), a(nearest[1], dtype=float))
-        return view
+    def _numpy_view(self, p: list, rows: list, weights: list, offset: list, offset_rate: list, vh: list | None,
+                    nearest: tuple | None) -> None:
+        """This tick's vectors into :attr:`view` as numpy arrays (a law with ``vectors = "numpy"``)."""
+        view, a = self.view, np.array
+        view.p, view.ph, view.offset, view.offset_rate = a(p), self.ph.copy(), a(offset), a(offset_rate)
+        view.rows, view.weights = a(rows, dtype=float).reshape(-1, 3), a(weights, dtype=float)
+        view.vh = None if vh is None else a(vh)
+        view.nearest = None if nearest is None else (a(nearest[0]), a(nearest[1], dtype=float))
 
     def fresh_sensing(self) -> bool:
         """Real time: whether sensing newer than the last act is held (act on it at once)."""

@@ -261,15 +261,19 @@ def make_law(cls: type, params: dict, robot_id: int, scenario=None):
 
 
 def checked_vector(x) -> list[float]:
-    """``x`` as 3 finite floats; raises ValueError/TypeError otherwise (the node's law_error)."""
+    """``x`` as 3 finite floats; raises ValueError otherwise (the node's law_error)."""
+    if type(x) is list and len(x) == 3:  # the built-ins' return: checked without a call per number
+        a, b, c = x
+        # x - x is 0 for a finite float, NaN for an infinite or NaN one: one comparison for all three
+        if type(a) is float and type(b) is float and type(c) is float and (a - a) + (b - b) + (c - c) == 0.0:
+            return x
     try:
         a, b, c = x
         finite = math.isfinite(a) and math.isfinite(b) and math.isfinite(c)
     except (TypeError, ValueError):  # not 3 things, or not numbers
         finite = False
     if finite:
-        return x if type(x) is list and type(a) is float and type(b) is float and type(c) is float \
-            else [float(a), float(b), float(c)]
+        return [float(a), float(b), float(c)]
     raise ValueError(f"expected 3 finite numbers, got {_short(x)}")
 
 
