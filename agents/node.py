@@ -21,7 +21,8 @@ import numpy as np
 
 from fxswarm.agents.links import InLinks
 from fxswarm.core import bus as topics
-from fxswarm.core.control import ControlParameters, robot_control
+from fxswarm.core.control import in_repulsive_zone, speed_limited
+from fxswarm.core.laws import LawView, checked_vector, describe_failure, make_law, resolve_law
 from fxswarm.core.messages import Command, Estimate, LeaderState, Message, Sense
 from fxswarm.core.observer import observer_weights, velocity_observer_rate
 from fxswarm.core.scenario import Scenario
@@ -32,8 +33,10 @@ FLAG_STALE_NEIGHBOUR = 1  # a neighbour silent longer than the staleness limit l
 FLAG_NO_LEADER = 2  # pinned, but the leader is silent: the estimator runs on neighbours alone
 FLAG_EXTRAPOLATING = 4  # hears nobody: the estimate moves with the last estimated leader velocity
 FLAG_NO_SENSING = 8  # no sensing for longer than the limit: commands zero velocity
+FLAG_LAW_ERROR = 16  # the law raised or returned no 3 finite numbers: zero velocity, the estimate kept
 FLAG_NAMES = {FLAG_STALE_NEIGHBOUR: "stale_neighbour", FLAG_NO_LEADER: "no_leader",
-              FLAG_EXTRAPOLATING: "extrapolating", FLAG_NO_SENSING: "no_sensing"}
+              FLAG_EXTRAPOLATING: "extrapolating", FLAG_NO_SENSING: "no_sensing", FLAG_LAW_ERROR: "law_error"}
+_ZERO = (0.0, 0.0, 0.0)
 #: Time constant (s) of the running mean of the estimate's rate used as the leader's velocity
 #: when extrapolating: the sign term makes the raw rate chatter by +-K3 per axis.
 LEADER_VELOCITY_TAU_S = 1.0
@@ -66,8 +69,12 @@ class AgentNode:
             weights.append(scenario.b[robot_id - 1])
         self.weights = np.array(weights, dtype=float)
         self._weight_list = self.weights.tolist()
-        self.law = ControlParameters(scenario.formation, scenario.avoidance, scenario.estimator, scenario.d,
-                                     scenario.v_max, semi_implicit=scenario.discretisation == "semi-implicit")
+        # The scenario's law (fxswarm.core.laws; checked when the scenario was loaded), and the
+        # view it is handed each tick, in the vectors it asked for.
+        self.law = make_law(resolve_law(scenario.law, scenario.law_folder), scenario.law_params, robot_id, scenario)
+        self.law_floats = getattr(self.law, "vectors", "numpy") == "floats"
+        self.view = LawView(robot_id, scenario.d)
+        self.law_error_first: str | None = None  # the first law_error's message
         self._command_topic = topics.command_topic(robot_id)
         self.sense: Sense | None = None
         self.estimates: dict[int, Estimate] = {}  # latest held per neighbour (zero-order hold)
@@ -311,22 +318,42 @@ class AgentNode:
         fresh_by = now - self.limits.staleness - 1e-9  # heard before this: stale (s)
         rows, weights, stale_neighbour, no_leader = self._held_rows(fresh_by, now)
         hears = len(weights) > 0
-        feedforward = self.vh.tolist() if self.feedforward else None  # eq. (11ff)
         if not hears and self.v_extrapolate is None:
             self._start_extrapolating(now)
         p_i0, dp_i0 = self.offset.state_lists(s.t)
-        v, dph, _, avoid_active, limited = robot_control(
-            s.p.tolist(), self.ph.tolist(), rows, weights, p_i0, dp_i0,
-            None if s.po is None else s.po.tolist(), None if s.vo is None else s.vo.tolist(), self.law, dt,
-            dph=None if hears else self.v_extrapolate.tolist(),  # hearing nobody: extrapolate
-            feedforward=feedforward,  # eqs. (11ff), (v2ff)
-        )
-        flags = self._degraded_flags(stale_neighbour, no_leader, hears, now)
+        p = s.p.tolist()
+        po = None if s.po is None else s.po.tolist()
+        view = self.view  # refreshed in place (per tick, per robot: the hot path)
+        view.t, view.dt, view.heard_leader = s.t, dt, self.pinned and not no_leader
+        vh = self.vh.tolist() if self.feedforward else None  # eqs. (11ff), (v2ff)
+        nearest = None if po is None else (po, _ZERO if s.vo is None else s.vo.tolist())
+        if self.law_floats:
+            view.p, view.ph, view.offset, view.offset_rate = p, self.ph.tolist(), p_i0, dp_i0
+            view.rows, view.weights, view.vh, view.nearest = rows, weights, vh, nearest
+        else:
+            self._numpy_view(p, rows, weights, p_i0, dp_i0, vh, nearest)
+        law_error = None
+        try:
+            method = "estimate_rate"  # hearing nobody: the node extrapolates, the law only steers
+            dph = checked_vector(self.law.estimate_rate(view)) if hears else self.v_extrapolate.tolist()
+            method = "velocity"
+            v = checked_vector(self.law.velocity(view, dph if self.law_floats else np.array(dph)))
+        except Exception as exc:  # the law's failure is the robot's degraded mode, never its crash
+            law_error = describe_failure(method, exc)
+            v, dph = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]  # stop, and keep the estimate
+            if self.law_error_first is None:
+                self.law_error_first = law_error
+        limited = False
+        if self.sc.v_max is not None:  # not in the paper: [scenario] v_max, for every law alike
+            v, limited = speed_limited(v, self.sc.v_max)
+        avoid_active = po is not None and in_repulsive_zone(p, po, self.sc.d)
+        flags = self._degraded_flags(stale_neighbour, no_leader, hears, now, law_error is not None)
         if hears:
-            gain = min(1.0, dt / LEADER_VELOCITY_TAU_S)
-            vl = self.v_leader.tolist()
-            self.v_leader = np.array([vl[0] + gain * (dph[0] - vl[0]), vl[1] + gain * (dph[1] - vl[1]),
-                                      vl[2] + gain * (dph[2] - vl[2])])
+            if law_error is None:
+                gain = min(1.0, dt / LEADER_VELOCITY_TAU_S)
+                vl = self.v_leader.tolist()
+                self.v_leader = np.array([vl[0] + gain * (dph[0] - vl[0]), vl[1] + gain * (dph[1] - vl[1]),
+                                          vl[2] + gain * (dph[2] - vl[2])])
             self.v_extrapolate = None
         self.history.append((now, self.ph, self.leader_velocity()))
         vh_used = self.vh
@@ -347,9 +374,18 @@ class AgentNode:
             (est_tick, est_t), est_ph, est_vh = estimate_at, self.ph, self.vh if self.feedforward else None
         cmd = Command("agent", self.id, self.seq_said, s.tick, s.t, self.id, np.array(v), ph_used, avoid_active,
                       flags, self.link_ages(now), tuple(self.in_links.drops), vh_used if self.feedforward else None,
-                      est_tick, est_t, est_ph, est_vh)
+                      est_tick, est_t, est_ph, est_vh, law_error)
         self.last_command = self._command_topic, cmd
         return self.last_command
+
+    def _numpy_view(self, p: list, rows: list, weights: list, offset: list, offset_rate: list, vh: list | None,
+                    nearest: tuple | None) -> None:
+        """This tick's vectors into :attr:`view` as numpy arrays (a law with ``vectors = "numpy"``)."""
+        view, a = self.view, np.array
+        view.p, view.ph, view.offset, view.offset_rate = a(p), self.ph.copy(), a(offset), a(offset_rate)
+        view.rows, view.weights = a(rows, dtype=float).reshape(-1, 3), a(weights, dtype=float)
+        view.vh = None if vh is None else a(vh)
+        view.nearest = None if nearest is None else (a(nearest[0]), a(nearest[1], dtype=float))
 
     def fresh_sensing(self) -> bool:
         """Real time: whether sensing newer than the last act is held (act on it at once)."""
@@ -424,10 +460,11 @@ class AgentNode:
         self.v_extrapolate = v0
         self.ph = ph0 + (now - t0) * v0
 
-    def _degraded_flags(self, stale_neighbour: bool, no_leader: bool, hears: bool, now: float) -> int:
+    def _degraded_flags(self, stale_neighbour: bool, no_leader: bool, hears: bool, now: float,
+                        law_error: bool = False) -> int:
         """The degraded modes of this step (``FLAG_*`` bits), counted in ``degraded_ticks``.
         ``stale_neighbour``/``no_leader``: from :meth:`_held_rows`."""
-        flags = 0
+        flags = FLAG_LAW_ERROR if law_error else 0
         if stale_neighbour:
             flags |= FLAG_STALE_NEIGHBOUR
         if no_leader:

@@ -169,6 +169,7 @@ class SwarmRecorder:
         sc, rec, n = self.sc, self.rec, self._n
         colours = style.robot_colours(n)
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        rec.log(style.LAW, rr.TextDocument(f"law: {sc.law}"), static=True)  # which controller flew
         labels = [str(r.id) for r in sc.robots]
         robot_names = [f"robot {r.id}" for r in sc.robots]
         rec.log(style.ROBOTS, rr.Points3D.from_fields(colors=colours, labels=labels, radii=0.3, show_labels=True),

@@ -13,6 +13,7 @@ TICK_TIMELINE = "tick"  # lock-step tick
 
 # 3D entities, under one origin so the blueprint's 3D view shows them all.
 ROBOTS = "world/robots"
+LAW = "run/law"  # the scenario's [controller] law, a text
 TRAILS = "world/trails"
 LEADER = "world/leader"
 ESTIMATES = "world/estimates"

@@ -15,6 +15,20 @@ PAPER_FAST = CONFIGS / "paper-fast.toml"
 PAPER = CONFIGS / "paper.toml"
 #: Every scenario the project ships, by stem (``paper-fast``, ``faults-crash``, ...).
 SHIPPED_CONFIGS = sorted(CONFIGS.glob("*.toml"))
+
+#: A fault plan that acts within a 1.5 s run of paper-fast: loss, delay (carried forward at the
+#: observed velocity), duplicates, a partition (robot 3 hears nobody: extrapolation) and a
+#: leader outage. For lock-step-equals-sim tests under faults.
+SHORT_RUN_FAULTS = {
+    "seed": 5,
+    "links": [
+        {"link": "agent:*->agent:*", "kinds": ["estimate"], "drop": 0.2, "delay": 0.03, "jitter": 0.02,
+         "duplicate": 0.1},
+        {"link": "leader->agent:1", "drop": 0.3, "delay": 0.01},
+    ],
+    "partitions": [{"start": 0.6, "end": 0.9, "isolate": [3]}],
+    "leader_outages": [{"start": 1.0, "end": 1.2}],
+}
 #: Length of the recorded runs (conftest's ``scenario``), s: formation motion, no avoidance yet.
 RECORDED_S = 3.0
 

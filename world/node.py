@@ -89,6 +89,7 @@ class WorldNode:
         self.degraded_ticks = 0  # ticks with at least one robot held at zero: it could not hear them
         self.unheard_since: int | None = None  # first tick of the current stretch with every robot held
         self.flag_ticks = np.zeros((n, 8), dtype=int)  # ticks each Command.flags bit was set, per robot
+        self.law_errors: dict[int, str] = {}  # per robot: the first law_error message heard
         self._heard: set[int] = set()  # real time: robots heard since the last advance
         self._sensed: tuple | None = None
         # Static obstacles never move: their (read-only) state is built once, not every tick.
@@ -174,6 +175,8 @@ class WorldNode:
             self.avoid[rid - 1] = cmd.avoid_active
             if cmd.flags:
                 self.flag_ticks[rid - 1] += (cmd.flags >> np.arange(8)) & 1
+                if cmd.law_error is not None:
+                    self.law_errors.setdefault(rid, cmd.law_error)
             self._take_links(cmd)
         self._note_silence(self.commands, self.sc.dt)
         self.commands = {}
@@ -196,6 +199,8 @@ class WorldNode:
         self._heard.add(msg.robot)
         if msg.flags:
             self.flag_ticks[msg.robot - 1] += (msg.flags >> np.arange(8)) & 1
+            if msg.law_error is not None:
+                self.law_errors.setdefault(msg.robot, msg.law_error)
         self._take_links(msg)
 
     def advance(self, dt: float) -> list[topics.Outgoing]:

@@ -148,40 +148,66 @@ def robot_control(
     """
     reference = None  # with feedforward under explicit Euler: the velocity eq. (v2ff) follows
     if dph is None:
-        if law.semi_implicit:
-            start, held = ph, rows
-            if feedforward is not None:  # eq. (11ff): eq. (11)'s implicit step in the frame moving at vh,
-                # neighbours held in that frame (else the step snaps to their tick-k consensus: a tick of lag a hop)
-                shift = [dt * feedforward[0], dt * feedforward[1], dt * feedforward[2]]
-                start = [ph[0] + shift[0], ph[1] + shift[1], ph[2] + shift[2]]
-                held = [[r[0] + shift[0], r[1] + shift[1], r[2] + shift[2]] for r in rows]
-            ph_next = estimator_step_semi_implicit(start, held, ws, law.estimator, dt)
-            dph = [(ph_next[0] - ph[0]) / dt, (ph_next[1] - ph[1]) / dt, (ph_next[2] - ph[2]) / dt]
-        else:
-            dph = estimator_rate(ph, rows, ws, law.estimator)  # eq. (11)
-            if feedforward is not None:  # eq. (11ff)
-                dph = [dph[0] + feedforward[0], dph[1] + feedforward[1], dph[2] + feedforward[2]]
-                reference = feedforward  # eq. (v2ff): the chatter stays out of the robot's velocity
+        dph = estimator_rate_step(ph, rows, ws, law, dt, feedforward)
+        if feedforward is not None and not law.semi_implicit:
+            reference = feedforward  # eq. (v2ff): the chatter stays out of the robot's velocity
+    v, e, active = behaviour_velocity(p, ph, dph, reference, p0, dp0, po, vo, law, dt)
+    v, limited = speed_limited(v, law.v_max)
+    return ControlOutput(v, list(dph), e, active, limited)
+
+
+def estimator_rate_step(ph: Vec, rows: Sequence[Vec], ws: Sequence[float], law: ControlParameters, dt: float,
+                        feedforward: Vec | None = None) -> list[float]:
+    """The estimate's rate over one step, m/s: eq. (11) (with ``feedforward``, eq. (11ff)), or
+    under ``law.semi_implicit`` the semi-implicit step's mean rate. Arguments as :func:`robot_control`."""
+    if law.semi_implicit:
+        start, held = ph, rows
+        if feedforward is not None:  # eq. (11ff): eq. (11)'s implicit step in the frame moving at vh,
+            # neighbours held in that frame (else the step snaps to their tick-k consensus: a tick of lag a hop)
+            shift = [dt * feedforward[0], dt * feedforward[1], dt * feedforward[2]]
+            start = [ph[0] + shift[0], ph[1] + shift[1], ph[2] + shift[2]]
+            held = [[r[0] + shift[0], r[1] + shift[1], r[2] + shift[2]] for r in rows]
+        ph_next = estimator_step_semi_implicit(start, held, ws, law.estimator, dt)
+        return [(ph_next[0] - ph[0]) / dt, (ph_next[1] - ph[1]) / dt, (ph_next[2] - ph[2]) / dt]
+    dph = estimator_rate(ph, rows, ws, law.estimator)  # eq. (11)
+    if feedforward is not None:  # eq. (11ff)
+        dph = [dph[0] + feedforward[0], dph[1] + feedforward[1], dph[2] + feedforward[2]]
+    return dph
+
+
+def behaviour_velocity(p: Vec, ph: Vec, dph: Vec, reference: Vec | None, p0: Vec, dp0: Vec, po: Vec | None,
+                       vo: Vec | None, law: ControlParameters, dt: float) -> tuple[list[float], list[float], bool]:
+    """``(v, e, avoid_active)``: the formation behaviour, eq. (v2) (following ``reference``
+    instead of ``dph`` when given: eq. (v2ff)), merged with the avoidance behaviour inside the
+    repulsive zone, eqs. (v1), (v). No speed limit. Arguments as :func:`robot_control`."""
     e = [p[0] - ph[0] - p0[0], p[1] - ph[1] - p0[1], p[2] - ph[2] - p0[2]]  # eq. (ctbf)
     if law.semi_implicit:
         v = formation_velocity_semi_implicit(e, dph, dp0, law.formation, dt)
     else:
         v = formation_velocity(e, dph if reference is None else reference, dp0, law.formation)  # eq. (v2), (v2ff)
     active = False
-    if po is not None:
+    if po is not None and in_repulsive_zone(p, po, law.d):
+        active = True
         u = [p[0] - po[0], p[1] - po[1], p[2] - po[2]]
-        d = law.d
-        if 0.5 * d * d - 0.5 * dot3(u, u) > 0.0:  # eq. (2): inside the repulsive zone
-            active = True
-            v_io = avoidance_velocity(u, vo if vo is not None else (0.0, 0.0, 0.0), d, law.avoidance)
-            v = merged_velocity(v_io, u, v)  # eq. (v)
-    limited = False
-    v_max = law.v_max
+        v_io = avoidance_velocity(u, vo if vo is not None else (0.0, 0.0, 0.0), law.d, law.avoidance)
+        v = merged_velocity(v_io, u, v)  # eq. (v)
+    return v, e, active
+
+
+def in_repulsive_zone(p: Vec, po: Vec, d: float) -> bool:
+    """Whether ``p`` is inside the repulsive zone of radius ``d`` around ``po``, eq. (2)."""
+    u0, u1, u2 = p[0] - po[0], p[1] - po[1], p[2] - po[2]
+    return 0.5 * d * d - 0.5 * (u0 * u0 + u1 * u1 + u2 * u2) > 0.0
+
+
+def speed_limited(v: list[float], v_max: float | None) -> tuple[list[float], bool]:
+    """``v`` scaled down to ``v_max`` (m/s; None: no limit) if faster, and whether it was.
+    Not in the paper: the scenario's ``[scenario] v_max``."""
     if v_max is not None:
         speed = math.sqrt(dot3(v, v))
-        if speed > v_max:  # not in the paper: scale the command down to the limit
-            v, limited = [v[0] * (v_max / speed), v[1] * (v_max / speed), v[2] * (v_max / speed)], True
-    return ControlOutput(v, list(dph), e, active, limited)
+        if speed > v_max:
+            return [v[0] * (v_max / speed), v[1] * (v_max / speed), v[2] * (v_max / speed)], True
+    return v, False
 
 
 def estimator_rate(ph: Vec, rows: Sequence[Vec], ws: Sequence[float], gains: EstimatorGains) -> list[float]:

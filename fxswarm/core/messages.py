@@ -147,6 +147,7 @@ class Command(Message):
     est_t: float | None = None
     est_ph: np.ndarray | None = None
     est_vh: np.ndarray | None = None
+    law_error: str | None = None  # the robot's law failed this tick: why (fxswarm.core.laws)
 
     def carried_estimate(self) -> "Estimate | None":
         """The :class:`Estimate` this command carries (numbered as the command), or None."""
@@ -188,12 +189,15 @@ _SHAPES: dict[str, str] = {
     "p": "vec", "po": "vec?", "vo": "vec?", "p0": "vec", "ph": "vec", "v": "vec",
     "vh": "vec?", "v0": "vec?", "est_ph": "vec?", "est_vh": "vec?", "est_tick": "int?", "est_t": "float?",
     "robot": "int", "avoid_active": "bool", "flags": "int", "link_age": "counts", "link_drops": "counts",
+    "law_error": "text?",
 }
 _STATE_SHAPES = {"p": "mat", "v": "mat", "ph": "mat", "nearest": "row", "avoid": "boolrow", "obstacles": "mat",
                  "link_age": "countrow", "link_drops": "countrow"}
 _MAX_COUNT = 2**53
 #: Fields a payload may leave out (None then); encode leaves them out when None.
-_OPTIONAL = frozenset({"vh", "v0", "est_tick", "est_t", "est_ph", "est_vh"})
+_OPTIONAL = frozenset({"vh", "v0", "est_tick", "est_t", "est_ph", "est_vh", "law_error"})
+#: The longest text field (``law_error``) a message may carry, characters.
+MAX_TEXT = 200
 
 
 def encode(msg: Message) -> bytes:
@@ -234,8 +238,12 @@ def _finite_number(x) -> bool:
 
 
 def _check(name: str, shape: str, value):
-    if shape in ("int?", "float?", "vec?") and value is None:
+    if shape in ("int?", "float?", "vec?", "text?") and value is None:
         return None
+    if shape == "text?":
+        if not isinstance(value, str) or len(value) > MAX_TEXT:
+            raise WireError(f"field {name!r}: expected a text of at most {MAX_TEXT} characters")
+        return value
     if shape == "float?":
         if not _finite_number(value):
             raise WireError(f"field {name!r}: expected a finite number")
@@ -298,7 +306,8 @@ _Vector = tuple[_Number, _Number, _Number]
 # decode would judge the fields a neighbour does not read.
 _Schema = Annotated[float, msgspec.Meta(ge=SCHEMA_VERSION, le=SCHEMA_VERSION)]
 _WIRE_TYPE = {"vec": _Vector, "vec?": _Vector | None, "int": _Count, "int?": _Count | None,
-              "float?": _Number | None, "bool": bool, "counts": tuple[_Count, ...]}
+              "float?": _Number | None, "bool": bool, "counts": tuple[_Count, ...],
+              "text?": Annotated[str, msgspec.Meta(max_length=MAX_TEXT)] | None}
 _ENVELOPE = ("role", "sender", "seq", "tick", "t")
 
 

@@ -21,6 +21,9 @@ import numpy as np
 from fxswarm.core import motion
 from fxswarm.core.bus import SWARM_NAME_RULE, is_swarm_name
 from fxswarm.core.control import BehaviourGains, EstimatorGains
+from fxswarm.core.laws import (
+    BUILTIN_LAWS, FAMILIES, LawError, builtin_name, family_gains, make_law, resolve_law, split_builtin,
+)
 from fxswarm.core.observer import DEFAULT_OBSERVER_GAINS, OBSERVER_GRAPHS, TRACKINGS, max_acceleration_inf
 from fxswarm.core.graph import TOPOLOGIES, adjacency, h_matrix, topology_edges, unreached_robots
 
@@ -70,6 +73,9 @@ class Scenario:
     logging: dict = field(repr=False, default_factory=dict)  # [logging], checked: the keys given (the logger's defaults)
     zenoh: dict = field(repr=False, default_factory=dict)  # [zenoh], checked: the keys given (the command line wins)
     ros2: "Ros2Settings | None" = None  # [ros2]: how the ROS 2 world reaches the robots (defaults if absent)
+    law: str = "fixed-time"  # [controller] law: a built-in name (fxswarm.core.laws) or module:Class
+    law_params: dict = field(repr=False, default_factory=dict)  # [controller.params], handed to the law
+    law_folder: str | None = None  # the scenario's folder: where a law module beside it is imported from
 
     @property
     def n(self) -> int:
@@ -283,7 +289,7 @@ def _behaviour(f: _Fields, lam_key: str, lam_default: float) -> BehaviourGains:
 
 #: Controller variants ([controller] variant / estimator_variant): the same law, its exponents chosen
 #: so that convergence is fixed-time (the paper), finite-time, or asymptotic (exponential).
-VARIANTS = ("fixed-time", "asymptotic", "finite-time")
+VARIANTS = FAMILIES
 DISCRETISATIONS = ("euler", "semi-implicit")
 #: [controller] delay_compensation: what a robot does with a neighbour's estimate (or the leader's
 #: state) older than its own time: carry it forward at its estimated leader velocity, or use it as is.
@@ -336,10 +342,10 @@ def _check_estimator_variant(f: _Fields, g: EstimatorGains, variant: str) -> Non
 OBSERVER_FIELDS = ("observer_K1", "observer_K2", "observer_K3", "observer_graph")
 
 
-def _tracking(ef: _Fields, estimator: EstimatorGains) -> tuple[str, EstimatorGains | None, str]:
+def _tracking(ef: _Fields, estimator: EstimatorGains, default: str = "paper") -> tuple[str, EstimatorGains | None, str]:
     """``[estimator] tracking`` and, for "feedforward", the observer's gains (same exponents and
     ``power`` as eq. (11))."""
-    tracking = ef.string("tracking", "paper", TRACKINGS)
+    tracking = ef.string("tracking", default, TRACKINGS)
     if tracking != "feedforward":
         for key in OBSERVER_FIELDS:
             if ef.has(key):
@@ -449,8 +455,29 @@ def _ros2(f: _Fields) -> Ros2Settings:
     return settings
 
 
-def parse(data: dict, source: str = "<scenario>") -> Scenario:
-    """Validate a parsed TOML document into a :class:`Scenario`."""
+def _builtin_law(cf: _Fields) -> tuple[str | None, str | None]:
+    """``(family, tracking)`` a built-in ``[controller] law`` name sets (None, None: no such name)."""
+    if not cf.has("law"):
+        return None, None
+    spec = cf.string("law")
+    return split_builtin(spec) if spec in BUILTIN_LAWS else (None, None)
+
+
+def _law(scenario: Scenario, cf: _Fields) -> None:
+    """The scenario's law resolved and built for every robot, or :class:`ScenarioError` naming
+    ``controller.law`` and the cause: before any process starts."""
+    try:
+        cls = resolve_law(scenario.law, scenario.law_folder)
+        for r in scenario.robots:
+            make_law(cls, scenario.law_params, r.id, scenario)
+    except LawError as exc:
+        raise ScenarioError(f"{scenario.source}: {cf.sub_path('law')}: {exc}") from None
+
+
+def parse(data: dict, source: str = "<scenario>", folder: str | None = None, *, check_law: bool = True) -> Scenario:
+    """Validate a parsed TOML document into a :class:`Scenario`. ``folder``: where a law module
+    named ``module:Class`` is looked for first (default: the folder of ``source``, if a file);
+    ``check_law=False``: the law is not imported (for an observer, which flies nothing)."""
     top = _Fields(source, data)
     top.check_known({"scenario", "gains", "estimator", "graph", "leader", "formation", "robots",
                      "obstacles", "faults", "controller", "logging", "zenoh", "ros2"})
@@ -466,12 +493,19 @@ def parse(data: dict, source: str = "<scenario>") -> Scenario:
 
     gf = top.table_at("gains", required=True)
     gf.check_known({"b1", "b2", "r0", "r1", "r2", "lam_f", "lam_o", "K1", "K2", "K3", "r3", "r4", "r5", "r6"})
+    cf = top.table_at("controller")
+    cf.check_known({"variant", "estimator_variant", "discretisation", "delay_compensation", "law", "params"})
+    family, law_tracking = _builtin_law(cf)  # law = "<family>[+feedforward]" sets these (docs/controllers.md)
+    if family is not None:
+        gf = _Fields(source, family_gains(gf.table, family), gf.path)
     formation = _behaviour(gf, "lam_f", 1.0)
     avoidance = _behaviour(gf, "lam_o", 1.0)
-    cf = top.table_at("controller")
-    cf.check_known({"variant", "estimator_variant", "discretisation", "delay_compensation"})
-    variant = cf.string("variant", "fixed-time", VARIANTS)
+    variant = cf.string("variant", family or "fixed-time", VARIANTS)
     estimator_variant = cf.string("estimator_variant", variant, VARIANTS)
+    if family is not None and (variant, estimator_variant) != (family, family):
+        cf.fail("variant" if variant != family else "estimator_variant",
+                f"{family!r} or nothing with law = {cf.table['law']!r}",
+                variant if variant != family else estimator_variant)
     discretisation = cf.string("discretisation", "euler", DISCRETISATIONS)
     delay_compensation = cf.string("delay_compensation", "leader-velocity", DELAY_COMPENSATIONS)
     _check_behaviour_variant(gf, formation, variant)
@@ -484,7 +518,9 @@ def parse(data: dict, source: str = "<scenario>") -> Scenario:
         power=ef.string("power", "pairwise", ("pairwise", "aggregate")),
     )
     _check_estimator_variant(gf, estimator, estimator_variant)
-    tracking, observer, observer_graph = _tracking(ef, estimator)
+    tracking, observer, observer_graph = _tracking(ef, estimator, law_tracking or "paper")
+    if law_tracking is not None and tracking != law_tracking:
+        ef.fail("tracking", f"{law_tracking!r} or nothing with law = {cf.table['law']!r}", tracking)
 
     # Offsets: a sinusoid shared by all robots, overridable per robot.
     ff = top.table_at("formation")
@@ -567,7 +603,12 @@ def parse(data: dict, source: str = "<scenario>") -> Scenario:
         delay_compensation=delay_compensation, tracking=tracking, observer=observer, observer_graph=observer_graph,
         logging=_logging(top.table_at("logging")), zenoh=_zenoh(top.table_at("zenoh")),
         ros2=_ros2(top.table_at("ros2")),
+        law=cf.string("law") if cf.has("law") else builtin_name(variant, tracking),
+        law_params=dict(cf.table_at("params").table),
+        law_folder=folder if folder is not None else _folder_of(source),
     )
+    if check_law:
+        _law(scenario, cf)
     if observer is not None:
         accel = max_acceleration_inf(leader)
         if observer.K3 < accel:
@@ -590,7 +631,7 @@ class ScenarioWarning(UserWarning):
     """A scenario is valid but breaks an assumption of the paper."""
 
 
-def load(path: str | FilePath) -> Scenario:
+def load(path: str | FilePath, *, check_law: bool = True) -> Scenario:
     """Read and validate a scenario file; raises :class:`ScenarioError` naming file and field."""
     source = str(path)
     try:
@@ -602,7 +643,13 @@ def load(path: str | FilePath) -> Scenario:
         raise ScenarioError(f"{source}: cannot read the scenario file: {exc.strerror}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{source}: not valid TOML: {exc}") from None
-    return parse(data, source)
+    return parse(data, source, str(FilePath(path).parent), check_law=check_law)
+
+
+def _folder_of(source: str) -> str | None:
+    """The folder of scenario file ``source``; None if ``source`` names no file."""
+    path = FilePath(source)
+    return str(path.parent) if path.is_file() else None
 
 
 def directed_links(sc: Scenario) -> list[tuple[int, int]]:

@@ -9,7 +9,8 @@ from fxswarm.core.scenario import Scenario
 from fxswarm.faults.plan import FaultPlan
 
 #: Names of the Command.flags bits, in bit order (see fxswarm.agents.node FLAG_*).
-FLAG_BITS = ("stale_neighbour", "no_leader", "extrapolating", "no_sensing")
+FLAG_BITS = ("stale_neighbour", "no_leader", "extrapolating", "no_sensing", "law_error")
+LAW_ERROR_BIT = FLAG_BITS.index("law_error")
 
 
 def first_settle_index(err: np.ndarray, tol: float) -> int | None:
@@ -69,6 +70,19 @@ def degraded_counts(world, n: int) -> dict:
     if held is not None:
         out["world_held_at_zero"] = {str(i + 1): int(held[i]) for i in range(n) if held[i]}
     return out
+
+
+def law_summary(sc: Scenario, world) -> dict:
+    """summary.json's ``law``: its name and, per robot whose law failed (robot ids as string
+    keys), the ticks it failed and the first failure's message."""
+    errors = {}
+    flag_ticks = getattr(world, "flag_ticks", None)
+    if flag_ticks is not None:
+        first = getattr(world, "law_errors", {})
+        for i in range(sc.n):
+            if flag_ticks[i, LAW_ERROR_BIT]:
+                errors[str(i + 1)] = {"ticks": int(flag_ticks[i, LAW_ERROR_BIT]), "first": first.get(i + 1)}
+    return {"name": sc.law, "errors": errors}
 
 
 def fault_summary(sc: Scenario, plan: FaultPlan, traj: dict[str, np.ndarray], world,

@@ -13,7 +13,7 @@ import numpy as np
 from fxswarm.core.metrics import summarise
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.plan import FaultPlan
-from fxswarm.faults.report import fault_summary
+from fxswarm.faults.report import fault_summary, law_summary
 
 LINK_COUNTS = ("delivered", "dropped", "delayed", "duplicated")
 
@@ -42,6 +42,7 @@ def build_summary(sc: Scenario, traj: dict[str, np.ndarray], plan: FaultPlan, *,
     degraded = getattr(world, "degraded", None)
     summary["degraded"] = degraded() if degraded is not None else {"ticks": 0, "robots": []}
     summary["router_outages"] = list(router_outages or [])
+    summary["law"] = law_summary(sc, world)
     summary.update(fault_summary(sc, plan, traj, world, dict(links or {}), restarts))
     if processes is not None:
         add_processes(summary, processes, process_events)

@@ -299,7 +299,8 @@ def main(args: argparse.Namespace) -> int:
         signal.signal(sig, on_signal)
     recorder = None
     try:
-        sc = load_or_exit(args.config or str(fetch_scenario(bus, out, deadline)))
+        # An observer flies nothing: a user's law need not be importable here (docs/controllers.md).
+        sc = load_or_exit(args.config or str(fetch_scenario(bus, out, deadline)), check_law=False)
         obs = Observer(sc, link.cut_around)
         if args.rerun != "none":
             recorder = open_recorder(sc, args.rerun, out, args.swarm)

@@ -78,6 +78,8 @@ ROUTER_PORT = 7447
 #: where the scenario is mounted, where a run is written (the images' volume) ...
 IN_CONTAINER_SCENARIO = "/app/scenario.toml"
 IN_CONTAINER_RUNS = "/app/runs"
+#: ... where a user's law module travels (on the containers' PYTHONPATH: docs/controllers.md) ...
+IN_CONTAINER_LAW = "/app/law"
 #: ... the unprivileged user every process runs as ...
 USER_ID = 10001
 #: ... and, in secure mode, where each container finds its keys (compose and Swarm mount secrets there).
@@ -135,13 +137,28 @@ def relative_path(path: Path, start: Path) -> str:
     return rel if rel.startswith("..") or rel.startswith("/") else "./" + rel
 
 
+def law_module(sc: Scenario) -> tuple[str, Path] | None:
+    """``(module, file)`` of the scenario's law if it is ``module:Class`` with ``module.py`` beside
+    the scenario (what the containers must be given); None for a built-in or registered law, or a
+    module found elsewhere (installed: it must be in the image, docs/controllers.md)."""
+    from fxswarm.core.laws import registered_laws
+
+    if sc.law in registered_laws() or sc.law_folder is None:
+        return None
+    module = sc.law.partition(":")[0]
+    path = Path(sc.law_folder) / f"{module}.py"
+    return (module, path) if "." not in module and path.is_file() else None
+
+
 def services(scenario: Scenario, scenario_path: str, context: str, plan: FaultPlan | None = None,
-             keys: str | None = None) -> dict:
+             keys: str | None = None, law_folder: str | None = None) -> dict:
     """The compose document for ``scenario`` as a dict (ordered as it will be written).
 
-    ``scenario_path``, ``context`` and ``keys`` (secure mode's keys folder, or None) are as the
-    compose file should name them (relative to the compose file's folder); ``plan``: the run's
-    resolved fault plan (default: the scenario's ``[faults]``), handed to every service.
+    ``scenario_path``, ``context``, ``keys`` (secure mode's keys folder, or None) and
+    ``law_folder`` (the scenario's folder when its law is a module beside it, or None: mounted
+    read-only on every role's PYTHONPATH) are as the compose file should name them (relative to
+    the compose file's folder); ``plan``: the run's resolved fault plan (default: the
+    scenario's ``[faults]``), handed to every service.
     """
     plan_json = dumps(plan if plan is not None else plan_of(scenario), scenario).replace("$", "$$")
     scheme = "tls" if keys else "tcp"
@@ -171,6 +188,10 @@ def services(scenario: Scenario, scenario_path: str, context: str, plan: FaultPl
                    "FXSWARM_CONNECT": f"{scheme}/router:{ROUTER_PORT}"}
     if keys:
         environment["FXSWARM_SECURE"] = SECRETS_DIR  # every command and health check takes its files there
+    role_volumes, role_environment = list(volumes), dict(environment)
+    if law_folder is not None:  # every role loads the scenario, and so imports its law
+        role_volumes.append(f"{law_folder}:{IN_CONTAINER_LAW}:ro")
+        role_environment["PYTHONPATH"] = IN_CONTAINER_LAW
 
     def health(role: str, ident: int, interval: int = HEALTH_INTERVAL_S) -> dict:
         # timeout: one check took 8 s on a 2-core host at load 20 (Python, Zenoh session, query);
@@ -185,8 +206,8 @@ def services(scenario: Scenario, scenario_path: str, context: str, plan: FaultPl
                    "--swarm", swarm,
                    "--clock", var("FXSWARM_CLOCK", "lockstep"), "--speed", var("FXSWARM_SPEED", "1"),
                    "--out", f"{IN_CONTAINER_RUNS}/{run}", *(extra or [])]
-        return {"command": command, "environment": dict(environment),
-                "volumes": list(volumes),
+        return {"command": command, "environment": dict(role_environment),
+                "volumes": list(role_volumes),
                 "depends_on": depends or {"router": {"condition": "service_started"}},
                 "healthcheck": health(name, ident, interval)}
 
@@ -288,8 +309,10 @@ def _scalar(value) -> str:
 def compose_file(scenario: Scenario, config_arg: str, output_dir: Path, context: Path,
                  plan: FaultPlan | None = None, keys: Path | None = None) -> str:
     """The whole compose file's text for ``scenario`` written into ``output_dir``."""
+    law = law_module(scenario)
     doc = services(scenario, relative_path(Path(scenario.source), output_dir), relative_path(context, output_dir),
-                   plan, relative_path(keys, output_dir) if keys is not None else None)
+                   plan, relative_path(keys, output_dir) if keys is not None else None,
+                   relative_path(law[1].parent, output_dir) if law is not None else None)
     return header(scenario, config_arg) + "\n" + render(doc).rstrip("\n") + "\n"
 
 

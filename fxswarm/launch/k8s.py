@@ -51,8 +51,8 @@ from pathlib import Path
 
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.plan import FAULTS_ENV, PLAN_ENV, FaultPlan, dumps, plan_of
-from fxswarm.launch.compose import (IN_CONTAINER_RUNS, IN_CONTAINER_SCENARIO, ROUTER_PORT, SECRETS_DIR, USER_ID,
-                                    add_fault_and_secure_arguments, image)
+from fxswarm.launch.compose import (IN_CONTAINER_LAW, IN_CONTAINER_RUNS, IN_CONTAINER_SCENARIO, ROUTER_PORT,
+                                    SECRETS_DIR, USER_ID, add_fault_and_secure_arguments, image, law_module)
 from fxswarm.launch.stack import AGENT_KEYS_DIR, WAIT_TIMEOUT_S, check_ids, checked_keys, dump_yaml, header
 from fxswarm.runtime.numbers import swarm_name
 
@@ -83,11 +83,14 @@ def dns_name(swarm: str) -> str:
 
 def manifests(sc: Scenario, scenario_text: str, swarm: str, tag: str = "latest", clock: str = "lockstep",
               wait_for: list[str] | None = None, plan: FaultPlan | None = None,
-              keys: Path | None = None) -> dict[str, list[dict]]:
+              keys: Path | None = None, law: tuple[str, str] | None = None) -> dict[str, list[dict]]:
     """File name -> the Kubernetes objects it holds.
 
     ``plan``: the run's resolved fault plan (default: the scenario's ``[faults]``); ``keys``:
-    secure mode's keys folder (checked), whose files go into ``secrets.yaml``, or None.
+    secure mode's keys folder (checked), whose files go into ``secrets.yaml``, or None;
+    ``law``: ``(module, source text)`` of a law module beside the scenario
+    (:func:`fxswarm.launch.compose.law_module`), carried in the scenario's ConfigMap onto
+    every role's PYTHONPATH, or None.
     """
     router_host = f"{swarm}-router"
     scheme = "tls" if keys is not None else "tcp"
@@ -133,6 +136,10 @@ def manifests(sc: Scenario, scenario_text: str, swarm: str, tag: str = "latest",
         }
         if role == "router":
             container["ports"] = [{"name": "zenoh", "containerPort": ROUTER_PORT, "protocol": "TCP"}]
+        elif law is not None:  # every role loads the scenario, and so imports its law
+            container["volumeMounts"].insert(1, {"name": "scenario", "mountPath": f"{IN_CONTAINER_LAW}/{law[0]}.py",
+                                                 "subPath": f"{law[0]}.py", "readOnly": True})
+            container["env"] = container["env"] + [{"name": "PYTHONPATH", "value": IN_CONTAINER_LAW}]
         spec = {
             "securityContext": {"runAsNonRoot": True, "runAsUser": USER_ID, "runAsGroup": USER_ID, "fsGroup": USER_ID},
             "containers": [container],
@@ -196,7 +203,8 @@ def manifests(sc: Scenario, scenario_text: str, swarm: str, tag: str = "latest",
                    "--scenario", IN_CONTAINER_SCENARIO]
     files = {
         "scenario.yaml": [{"apiVersion": "v1", "kind": "ConfigMap", "metadata": meta("scenario", "scenario"),
-                           "data": {"scenario.toml": scenario_text}}],
+                           "data": {"scenario.toml": scenario_text,
+                                    **({f"{law[0]}.py": law[1]} if law is not None else {})}}],
         "router.yaml": [deployment("router", router_args), service("router", "router")],
         "agents.yaml": [
             service("agent", "agent", headless=True),
@@ -240,7 +248,9 @@ def main(args: argparse.Namespace) -> int:
     keys = checked_keys(sc, args.secure, "k8s") if args.secure else None
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    files = manifests(sc, Path(args.config).read_text(), swarm, args.tag, args.clock, args.wait_for, plan, keys)
+    law = law_module(sc)
+    files = manifests(sc, Path(args.config).read_text(), swarm, args.tag, args.clock, args.wait_for, plan, keys,
+                      (law[0], law[1].read_text()) if law is not None else None)
     how = "kubectl apply -k DIR" if args.kustomize else "kubectl apply -f DIR"
     head = header(sc, f"k8s {args.config}", f"Apply: {how}; images fxswarm-<role> from docker/build-images.sh, "
                   "pushed to a registry or loaded into the cluster's nodes")

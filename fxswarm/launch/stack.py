@@ -54,8 +54,9 @@ from pathlib import Path
 
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.plan import FAULTS_ENV, PLAN_ENV, FaultPlan, dumps, plan_of
-from fxswarm.launch.compose import (HEALTH_INTERVAL_S, IMAGES, IN_CONTAINER_RUNS, IN_CONTAINER_SCENARIO, ROUTER_PORT,
-                                    SECRETS_DIR, USER_ID, add_fault_and_secure_arguments, image, relative_path, var)
+from fxswarm.launch.compose import (HEALTH_INTERVAL_S, IMAGES, IN_CONTAINER_LAW, IN_CONTAINER_RUNS,
+                                    IN_CONTAINER_SCENARIO, ROUTER_PORT, SECRETS_DIR, USER_ID,
+                                    add_fault_and_secure_arguments, image, law_module, relative_path, var)
 from fxswarm.runtime.numbers import swarm_name
 
 NETWORK = "fxswarm"
@@ -93,12 +94,13 @@ def world_extra(wait_for: list[str]) -> list[str]:
 
 
 def stack_document(sc: Scenario, swarm: str, wait_for: list[str], plan: FaultPlan | None = None,
-                   keys: str | None = None) -> dict:
+                   keys: str | None = None, law: str | None = None) -> dict:
     """The stack file for ``sc`` as a dict (YAML-ready).
 
     ``plan``: the run's resolved fault plan (default: the scenario's ``[faults]``), handed to
     every service; ``keys``: secure mode's keys folder as the stack file names it (relative to
-    its folder), or None.
+    its folder), or None; ``law``: the name of the law module beside the scenario, copied as
+    ``LAW.py`` beside the stack file (:func:`fxswarm.launch.compose.law_module`), or None.
     """
     tag = var("FXSWARM_TAG", "latest")
     run = var("FXSWARM_RUN", f"{sc.name}-stack")
@@ -135,6 +137,9 @@ def stack_document(sc: Scenario, swarm: str, wait_for: list[str], plan: FaultPla
             },
         }
         out["configs"] = [{"source": "scenario", "target": IN_CONTAINER_SCENARIO, "mode": 0o444}]
+        if law is not None and role != "router":  # a user's law module: a config on every role's PYTHONPATH
+            out["configs"].append({"source": "law", "target": f"{IN_CONTAINER_LAW}/{law}.py", "mode": 0o444})
+            out["environment"]["PYTHONPATH"] = IN_CONTAINER_LAW
         # The router too: the images declare the volume, and a task without it mounted leaves an
         # anonymous volume on its node each time it starts.
         out["volumes"] = [{"type": "volume", "source": "runs", "target": IN_CONTAINER_RUNS}]
@@ -160,6 +165,8 @@ def stack_document(sc: Scenario, swarm: str, wait_for: list[str], plan: FaultPla
         "volumes": {"runs": {}},
         "configs": {"scenario": {"file": "./scenario.toml"}},
     }
+    if law is not None:
+        doc["configs"]["law"] = {"file": f"./{law}.py"}
     if keys:
         doc["secrets"] = secure_services(services, sc, keys)
     return doc
@@ -253,8 +260,11 @@ def main(args: argparse.Namespace) -> int:
     keys = checked_keys(sc, args.secure, "stack") if args.secure else None
     out.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(args.config, out / "scenario.toml")
+    law = law_module(sc)
+    if law is not None:
+        shutil.copyfile(law[1], out / f"{law[0]}.py")
     doc = stack_document(sc, swarm, args.wait_for if args.wait_for is not None else ["logger/0"], plan,
-                         relative_path(keys, out) if keys is not None else None)
+                         relative_path(keys, out) if keys is not None else None, law[0] if law is not None else None)
     text = dump_yaml(doc, header(sc, f"stack {args.config}",
                                  f"Deploy: docker stack deploy -c stack.yml NAME   (images: docker/build-images.sh on "
                                  f"every node; {', '.join(sorted({v[0] for v in IMAGES.values()}))})"))

@@ -69,11 +69,12 @@ def write_figures(run: Path, summary: dict, d: float) -> list[Path]:
 
     traj = load_trajectory(run)
     tol = summary.get("settle_tolerance_m")
+    law = (summary.get("law") or {}).get("name")  # absent from runs made before the law API
     paths = [
-        figures.formation_error(traj, run / FIGURES[0], tol, summary.get("formation_settle_s")),
-        figures.obstacle_distances(traj, run / FIGURES[1], d),
-        figures.trajectories_3d(traj, run / FIGURES[2], d),
-        figures.estimate_error(traj, run / FIGURES[3], summary.get("estimate_settle_s")),
+        figures.formation_error(traj, run / FIGURES[0], tol, summary.get("formation_settle_s"), law),
+        figures.obstacle_distances(traj, run / FIGURES[1], d, law),
+        figures.trajectories_3d(traj, run / FIGURES[2], d, law),
+        figures.estimate_error(traj, run / FIGURES[3], summary.get("estimate_settle_s"), law),
     ]
     sweep = run / "sweep.json"
     if sweep.is_file():

@@ -27,14 +27,17 @@ def _per_robot(ax, t: np.ndarray, values: np.ndarray, label: str = "robot {}") -
         ax.plot(t, values[:, i], color=robot_hex(i), lw=1.2, label=label.format(i + 1))
 
 
-def _save(fig, path: Path) -> Path:
+def _save(fig, path: Path, law: str | None = None) -> Path:
+    if law is not None:  # which controller flew: runs of several laws side by side stay apart
+        fig.suptitle(f"law: {law}", fontsize=10, x=0.99, ha="right")
     fig.tight_layout()
     fig.savefig(path, dpi=DPI)
     plt.close(fig)
     return path
 
 
-def formation_error(traj: dict, out: Path, tolerance: float | None = None, settle_s: float | None = None) -> Path:
+def formation_error(traj: dict, out: Path, tolerance: float | None = None, settle_s: float | None = None,
+                    law: str | None = None) -> Path:
     """Fig. 6: ``|e_i| = |p_i - p0 - p_i0(t)|`` per robot against time."""
     t, err = traj["t"], formation_errors(traj)
     fig, (ax, ax_log) = plt.subplots(1, 2, figsize=(11, 4))
@@ -52,10 +55,10 @@ def formation_error(traj: dict, out: Path, tolerance: float | None = None, settl
     ax.set_title("formation error per robot (paper Fig. 6)")
     ax_log.set_title("same, log scale")
     ax.legend(fontsize=8, ncol=2)
-    return _save(fig, out)
+    return _save(fig, out, law)
 
 
-def obstacle_distances(traj: dict, out: Path, d: float) -> Path:
+def obstacle_distances(traj: dict, out: Path, d: float, law: str | None = None) -> Path:
     """Fig. 8: each robot's distance to its nearest obstacle, and to its nearest object, with ``d``."""
     t = traj["t"]
     fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
@@ -72,7 +75,7 @@ def obstacle_distances(traj: dict, out: Path, d: float) -> Path:
         if np.isfinite(traj["obstacle_distance"]).any() else 4 * d
     axes[0].set_ylim(0, max(3 * d, float(top)))
     axes[0].legend(fontsize=8, ncol=2)
-    return _save(fig, out)
+    return _save(fig, out, law)
 
 
 def _sphere(ax, centre: np.ndarray, r: float, colour: str) -> None:
@@ -81,7 +84,7 @@ def _sphere(ax, centre: np.ndarray, r: float, colour: str) -> None:
                     centre[2] + r * np.cos(v), color=colour, alpha=0.18, linewidth=0)
 
 
-def trajectories_3d(traj: dict, out: Path, d: float) -> Path:
+def trajectories_3d(traj: dict, out: Path, d: float, law: str | None = None) -> Path:
     """Fig. 9: robots' paths in 3D, the leader's, and the obstacles as spheres of radius ``d``."""
     p, p0, obstacles = traj["p"], traj["p0"], traj["obstacles"]
     fig = plt.figure(figsize=(7.5, 7))
@@ -105,10 +108,10 @@ def trajectories_3d(traj: dict, out: Path, d: float) -> Path:
     horizontal = max(span[0], span[1], 1.0)
     ax.set_box_aspect((max(span[0], 1), max(span[1], 1), min(max(span[2], 1), 1.6 * horizontal)))
     ax.legend(fontsize=8, loc="upper left")
-    return _save(fig, out)
+    return _save(fig, out, law)
 
 
-def estimate_error(traj: dict, out: Path, settle_s: float | None = None) -> Path:
+def estimate_error(traj: dict, out: Path, settle_s: float | None = None, law: str | None = None) -> Path:
     """``|ph_i - p0|`` per robot against time, log scale: convergence and the sign term's chatter."""
     t, err = traj["t"], estimate_errors(traj)
     fig, ax = plt.subplots(figsize=(8, 4))
@@ -121,7 +124,7 @@ def estimate_error(traj: dict, out: Path, settle_s: float | None = None) -> Path
     ax.set_title("distributed estimator: error of each robot's leader estimate")
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8, ncol=2)
-    return _save(fig, out)
+    return _save(fig, out, law)
 
 
 def settling_vs_initial_error(rows: list[dict], out: Path) -> Path:

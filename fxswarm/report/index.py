@@ -43,8 +43,12 @@ def _fmt(value, form: str) -> str:
 def write_index(run: Path, summary: dict, figures: list[Path], snapshots: list[Path]) -> Path:
     """Write ``run/index.md``; figure links are relative so the folder can move."""
     title = summary.get("scenario", run.name)
-    lines = [f"# Run `{title}`", "", f"Scenario: `{summary.get('source', '?')}`.", "",
+    law = summary.get("law") or {}
+    lines = [f"# Run `{title}`", "", f"Scenario: `{summary.get('source', '?')}`."
+             + (f" Law: `{law['name']}`." if "name" in law else ""), "",
              "| quantity | value |", "| --- | --- |"]
+    for robot, error in sorted((law.get("errors") or {}).items(), key=lambda kv: int(kv[0])):
+        lines.append(f"| law_error, robot {robot}: ticks (first) | {error['ticks']} ({error['first']}) |")
     for key, label, form in _NUMBERS:
         if key in summary:
             lines.append(f"| {label} | {_fmt(summary[key], form)} |")

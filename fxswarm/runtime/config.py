@@ -17,12 +17,13 @@ from fxswarm.core.scenario import Scenario, ScenarioError, ScenarioWarning, load
 from fxswarm.faults.plan import FAULTS_ENV, PLAN_ENV, FaultPlan, load_plan, resolve
 
 
-def load_or_exit(path: str):
-    """Load a scenario; on error print it and exit 2 (scenario warnings go to stderr)."""
+def load_or_exit(path: str, *, check_law: bool = True):
+    """Load a scenario; on error print it and exit 2 (scenario warnings go to stderr).
+    ``check_law=False``: its law is not imported (an observer flies nothing)."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ScenarioWarning)
         try:
-            sc = load(path)
+            sc = load(path, check_law=check_law)
         except ScenarioError as exc:
             print(f"fxswarm: {exc}", file=sys.stderr)
             raise SystemExit(2) from None

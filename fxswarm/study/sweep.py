@@ -51,12 +51,12 @@ from fxswarm.core.bounds import (
 )
 from fxswarm.core.control import BehaviourGains
 from fxswarm.core.observer import oriented_settling_bound
-from fxswarm.core.scenario import DISCRETISATIONS, VARIANTS, Scenario, ScenarioWarning
+from fxswarm.core.scenario import DISCRETISATIONS, VARIANTS, Scenario, ScenarioError, ScenarioWarning
 from fxswarm.runtime.numbers import positive, positive_int
 from fxswarm.runtime.output import prepare_run_folder
 from fxswarm.study.measure import initial_errors, settle_times
 from fxswarm.study.parallel import parallel_map
-from fxswarm.study.variants import SWEEP_VARIANTS, case_toml, parse_case
+from fxswarm.study.variants import SWEEP_VARIANTS, case_toml, parse_case, variant_toml
 
 DEFAULT_SCALES = (1.0, 10.0, 100.0, 1000.0, 10000.0, 100000.0)
 
@@ -123,13 +123,14 @@ def _finite(x: float) -> float | None:
 # --- one case (runs in a worker process) ----------------------------------------------
 
 
-def run_case(raw: dict, source: str, variant: str, scale: float) -> dict:
-    """Parse and run one case; return its ``sweep.json`` row."""
+def run_case(raw: dict, source: str, variant: str, scale: float, folder: str | None = None) -> dict:
+    """Parse and run one case (``folder``: the base scenario's, for a user's law); return its
+    ``sweep.json`` row."""
     from fxswarm.launch.sim import Simulation  # imported in the worker, after spawn
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ScenarioWarning)  # the parent reports the base scenario's warnings
-        sc = parse_case(raw, source)
+        sc = parse_case(raw, source, folder)
     start = time.perf_counter()
     sim = Simulation(sc)
     summary = sim.run()
@@ -140,6 +141,7 @@ def run_case(raw: dict, source: str, variant: str, scale: float) -> dict:
     robot_gap = _min_robot_distance(traj["p"])
     return {
         "variant": variant,
+        "law": sc.law,
         "scale": scale,
         "duration_s": sc.duration,
         "dt": sc.dt,
@@ -185,7 +187,7 @@ def plan(
     avoidance: bool = False,
     discretisation: str | None = None,
 ) -> list[tuple[dict, str, str, float]]:
-    """The cases ``(raw TOML, source label, variant, scale)``, longest first (for load balance)."""
+    """The cases ``(raw TOML, source label, variant, scale, law folder)``, longest first (for load balance)."""
     cases = []
     for variant in variants:
         for scale in scales:
@@ -194,14 +196,14 @@ def plan(
             if duration is None:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", ScenarioWarning)
-                    sc = parse_case(raw, label)
+                    sc = parse_case(raw, label, base.law_folder)
                 raw["scenario"]["duration"] = case_duration(sc, initial_errors(sc)["formation_task_m"], max_duration)
-            cases.append((raw, label, variant, scale))
+            cases.append((raw, label, variant, scale, base.law_folder))
     cases.sort(key=lambda c: -c[0]["scenario"]["duration"] / c[0]["scenario"].get("dt", base.dt))
     return cases
 
 
-def run_sweep(cases: list[tuple[dict, str, str, float]], workers: int, progress=None) -> list[dict]:
+def run_sweep(cases: list[tuple], workers: int, progress=None) -> list[dict]:
     """Run the cases on ``workers`` spawned processes; rows ordered by variant, then scale."""
     rows = parallel_map(run_case, cases, workers, progress)
     order = {v: k for k, v in enumerate(SWEEP_VARIANTS)}
@@ -273,7 +275,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="factors applied to the initial displacement and estimate error (default: %(default)s)")
     p.add_argument("--variants", default=",".join(VARIANTS),
                    help="controller variants (default: %(default)s); each also as <variant>+feedforward "
-                        "(estimator tracking = \"feedforward\", docs/estimator.md)")
+                        "(estimator tracking = \"feedforward\", docs/estimator.md), or a user's law, "
+                        "module:Class or a registered name (docs/controllers.md)")
     p.add_argument("--out", default=None, help="folder for sweep.json and the figure (default: runs/<name>-sweep)")
     p.add_argument("--dt", type=positive, default=None, help="control period, s (default: the scenario's)")
     p.add_argument("--duration", type=positive, default=None,
@@ -300,9 +303,10 @@ def main(args: argparse.Namespace) -> int:
     base = load_or_exit(args.config)
     scales = _parse_list(args.scales, float, "scales")
     variants = _parse_list(args.variants, str, "variants")
-    bad = [v for v in variants if v not in SWEEP_VARIANTS]
+    bad = [why for v in variants if v not in SWEEP_VARIANTS and (why := _law_refused(v, base))]
     if bad or not scales or any(s <= 0 for s in scales):
-        print(f"fxswarm sweep: expected --variants from {', '.join(SWEEP_VARIANTS)} and --scales > 0", file=sys.stderr)
+        print(f"fxswarm sweep: expected --variants from {', '.join(SWEEP_VARIANTS)} or a law "
+              f"(module:Class), and --scales > 0{''.join('; ' + why for why in bad)}", file=sys.stderr)
         return 2
     if base.variant != "fixed-time" or base.estimator_variant != "fixed-time":
         print(f"fxswarm sweep: {args.config}: the variants derive from fixed-time gains; this scenario "
@@ -347,6 +351,15 @@ def write_figure(out: Path, rows: list[dict]) -> Path | None:
     except ImportError:  # the report is another package's; the JSON stands alone
         return None
     return settling_vs_initial_error(sweep_rows({"rows": rows}), out / SETTLING)
+
+
+def _law_refused(spec: str, base: Scenario) -> str | None:
+    """Why a user's law named as a variant cannot fly on ``base`` (None: it can)."""
+    try:
+        parse_case(variant_toml(base.raw, spec), base.source, base.law_folder)
+    except ScenarioError as exc:
+        return str(exc)
+    return None
 
 
 def _interrupted(signum, frame) -> None:

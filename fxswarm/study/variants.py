@@ -29,56 +29,36 @@ import copy
 
 import numpy as np
 
+# The sweep's names for the built-in laws (fxswarm.core.laws): one list, one split, one derivation.
+from fxswarm.core.laws import BUILTIN_LAWS as SWEEP_VARIANTS
+from fxswarm.core.laws import FEEDFORWARD_SUFFIX, FINITE_TIME_TOP_EXPONENT, variant_gains  # noqa: F401
+from fxswarm.core.laws import split_builtin as split_variant
 from fxswarm.core.scenario import VARIANTS, Scenario, parse
-
-#: Suffix of a sweep variant that runs the estimator with ``tracking = "feedforward"``.
-FEEDFORWARD_SUFFIX = "+feedforward"
-#: Every variant a sweep can run: the controller variants, then each with feedforward tracking.
-SWEEP_VARIANTS = VARIANTS + tuple(v + FEEDFORWARD_SUFFIX for v in VARIANTS)
-
-
-def split_variant(name: str) -> tuple[str, str]:
-    """``(controller variant, estimator tracking)`` of a sweep variant name."""
-    if name.endswith(FEEDFORWARD_SUFFIX):
-        return name[: -len(FEEDFORWARD_SUFFIX)], "feedforward"
-    return name, "paper"
-
-
-#: Effective large-error exponent of the finite-time variant (``r1*r0`` and ``r3/r4``):
-#: close enough to 1 that the sweep's largest scales settle in a few minutes of simulated time.
-FINITE_TIME_TOP_EXPONENT = 0.9
-
 
 #: The repulsive radius (m) that switches the avoidance behaviour off in practice: two robots
 #: would have to come within a micrometre of each other.
 NO_AVOIDANCE_D = 1e-6
 
 
-def variant_gains(gains: dict, variant: str) -> dict:
-    """The ``[gains]`` table of ``variant``, derived from a fixed-time ``[gains]`` table.
-
-    Only exponents change; ``lam_*``, ``b*`` and ``K*`` are the paper's, so that the
-    variants differ in the one property being compared.
-    """
-    if variant not in VARIANTS:
-        raise ValueError(f"unknown controller variant {variant!r}; expected one of {', '.join(VARIANTS)}")
-    g = dict(gains)
-    if variant == "asymptotic":
-        g.update(r0=1.0, r1=1.0, r2=1.0, r3=float(g["r4"]), r5=float(g["r6"]))
-    elif variant == "finite-time":
-        g.update(r1=FINITE_TIME_TOP_EXPONENT / float(g["r0"]), r3=FINITE_TIME_TOP_EXPONENT * float(g["r4"]))
-    return g
-
-
 def variant_toml(raw: dict, variant: str, discretisation: str | None = None) -> dict:
     """A deep copy of scenario TOML ``raw`` running ``variant`` (behaviours and estimator alike;
-    a ``+feedforward`` suffix sets ``[estimator] tracking = "feedforward"``)."""
-    variant, tracking = split_variant(variant)
+    a ``+feedforward`` suffix sets ``[estimator] tracking = "feedforward"``). A variant that is
+    no built-in is a user's law (``module:Class`` or a registered name, docs/controllers.md),
+    flown on the scenario as it is, ``[controller.params]`` included."""
     out = copy.deepcopy(raw)
+    if variant not in SWEEP_VARIANTS:
+        controller = dict(out.get("controller", {}), law=variant)
+        if discretisation is not None:
+            controller["discretisation"] = discretisation
+        out["controller"] = controller
+        return out
+    variant, tracking = split_variant(variant)
     if tracking != "paper":
         out["estimator"] = dict(out.get("estimator", {}), tracking=tracking)
     out["gains"] = variant_gains(raw["gains"], variant)
     controller = dict(out.get("controller", {}))
+    controller.pop("law", None)  # the base's own law, if any, and its parameters: not this variant's
+    controller.pop("params", None)
     controller["variant"] = variant
     controller["estimator_variant"] = variant
     if discretisation is not None:
@@ -134,6 +114,7 @@ def case_toml(
     return raw
 
 
-def parse_case(raw: dict, source: str) -> Scenario:
-    """Parse a case built by :func:`case_toml` (validation included)."""
-    return parse(raw, source)
+def parse_case(raw: dict, source: str, folder: str | None = None) -> Scenario:
+    """Parse a case built by :func:`case_toml` (validation included); ``folder``: the base
+    scenario's, where a user's law module is found."""
+    return parse(raw, source, folder)

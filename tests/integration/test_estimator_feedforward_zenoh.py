@@ -12,22 +12,12 @@ import pytest
 from fxswarm.core.scenario import load
 from fxswarm.runtime.output import load_trajectory
 from fxswarm.testing import dump_toml
+from support import SHORT_RUN_FAULTS
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 PAPER_FAST = CONFIGS / "paper-fast.toml"
 
-#: Link faults that act within a short run: loss, delay (carried forward at the observed
-#: velocity), duplicates, a partition (robot 3 hears nobody: extrapolation) and a leader outage.
-FAULTS = {
-    "seed": 5,
-    "links": [
-        {"link": "agent:*->agent:*", "kinds": ["estimate"], "drop": 0.2, "delay": 0.03, "jitter": 0.02,
-         "duplicate": 0.1},
-        {"link": "leader->agent:1", "drop": 0.3, "delay": 0.01},
-    ],
-    "partitions": [{"start": 0.6, "end": 0.9, "isolate": [3]}],
-    "leader_outages": [{"start": 1.0, "end": 1.2}],
-}
+FAULTS = SHORT_RUN_FAULTS
 
 
 def estimate_errors(traj: dict) -> np.ndarray:

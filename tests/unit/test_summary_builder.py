@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[2]
 COMMON_KEYS = {"scenario", "source", "robots", "ticks", "dt", "duration_s", "wall_s", "min_object_distance_m",
                "min_obstacle_distance_m", "formation_error_final_m", "estimate_error_final_m", "formation_settle_s",
                "estimate_settle_s", "settle_tolerance_m", "avoidance_episodes", "fixed_time_bounds_s",
-               "max_formation_error_after_settle_m", "faults", "degraded", "router_outages"}
+               "max_formation_error_after_settle_m", "faults", "degraded", "router_outages", "law"}
 FAULT_KEYS = {"seed", "links", "recoveries", "degraded_ticks", "restarts"}
 
 
