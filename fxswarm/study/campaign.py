@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import random
 import signal
 import subprocess
@@ -185,8 +186,6 @@ def main(args: argparse.Namespace) -> int:
 
 def run_campaign(plan: Plan, out: Path, records: dict[str, dict], args: argparse.Namespace) -> int:
     """Run the runs not in ``records`` yet, appending each to ``runs.jsonl`` (and ``records``)."""
-    import os
-
     todo = [r for r in plan.runs if r.id not in records]
     workers = args.workers or os.cpu_count() or 1
     where = args.executor if args.executor != "local" else f"{min(workers, max(len(todo), 1))} local workers"

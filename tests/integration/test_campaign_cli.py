@@ -151,6 +151,36 @@ def test_ctrl_c_stops_the_campaign_and_its_workers_keeping_whole_lines(tmp_path)
     assert not doc["complete"] and doc["totals"]["runs"] == len(recs)
 
 
+def test_a_killed_worker_ends_the_campaign_keeping_every_finished_run_and_the_rest_runs_again(tmp_path):
+    out = tmp_path / "c"
+    argv = campaign_argv(out, "--seeds", "2", "--workers", "2", duration=2.0)
+    proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    runs = out / "runs.jsonl"
+    end = time.monotonic() + 180
+    try:
+        while not (runs.is_file() and runs.read_text().count("\n") >= 1):
+            assert proc.poll() is None and time.monotonic() < end
+            time.sleep(0.02)
+        workers = [p for p in descendants(proc.pid)
+                   if b"spawn_main" in Path(f"/proc/{p}/cmdline").read_bytes()
+                   and b"resource_tracker" not in Path(f"/proc/{p}/cmdline").read_bytes()]
+        assert len(workers) == 2, workers
+        os.kill(workers[0], signal.SIGKILL)  # as the kernel's OOM killer would
+        code = proc.wait(60)
+        err = proc.stderr.read().decode()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert code == 1 and "a worker process died" in err, err
+    wait_gone(workers)
+    before = records(out)
+    assert 1 <= len(before) < 16
+    run_campaign(out, "--seeds", "2", "--workers", "2", duration=2.0)
+    after = records(out)
+    assert after[:len(before)] == before
+    assert sorted({r["id"] for r in after}) == sorted(r["id"] for r in after) and len(after) == 16
+
+
 @pytest.fixture
 def dask_cluster(tmp_path):
     """A real Dask scheduler and two single-threaded workers on 127.0.0.1, torn down after the test."""
