@@ -23,7 +23,6 @@ import sys
 import time
 import traceback
 import warnings
-from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 import numpy as np
@@ -46,7 +45,7 @@ from fxswarm.study.campaign_plan import (
     write_scenarios,
 )
 from fxswarm.study.campaign_store import RunLog, campaign_document, claim_folder, read_runs, write_document
-from fxswarm.study.parallel import DASK_PREFIX, completed
+from fxswarm.study.parallel import DASK_PREFIX, WorkerLost, completed
 
 CONFIRM = "confirm.json"
 
@@ -213,8 +212,8 @@ def run_campaign(plan: Plan, out: Path, records: dict[str, dict], args: argparse
         print(f"\nfxswarm campaign: interrupted; {len(records)} finished runs are in {out / 'runs.jsonl'}: "
               "the same command runs the rest", file=sys.stderr)
         return 130
-    except BrokenProcessPool as exc:
-        print(f"fxswarm campaign: a worker process died ({exc}); {len(records)} finished runs are in "
+    except WorkerLost as exc:
+        print(f"fxswarm campaign: {exc}; {len(records)} finished runs are in "
               f"{out / 'runs.jsonl'}: the same command runs the rest", file=sys.stderr)
         return 1
     except ValueError as exc:  # the executor could not be reached

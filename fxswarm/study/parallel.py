@@ -10,9 +10,14 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 
 #: ``--executor`` value that sends the work to a Dask scheduler: ``dask://HOST:PORT``.
 DASK_PREFIX = "dask://"
+
+
+class WorkerLost(RuntimeError):
+    """A worker process died (killed, out of memory) with a case in hand: its result is lost."""
 
 
 def parallel_map(fn: Callable[..., dict], cases: Sequence[tuple], workers: int,
@@ -38,7 +43,7 @@ def completed(fn: Callable[..., dict], cases: Sequence[tuple], workers: int,
     here, in order), or ``dask://HOST:PORT`` for a Dask distributed scheduler. Spawn, not
     fork: a fork would copy whatever sessions or threads the parent holds. Leaving the loop
     early (Ctrl-C, an exception, ``break``) stops every worker process at once; a worker that
-    dies raises ``concurrent.futures.process.BrokenProcessPool`` instead of hanging.
+    dies raises :class:`WorkerLost` instead of hanging.
     """
     if executor is not None and executor.startswith(DASK_PREFIX):
         yield from _dask_completed(fn, cases, executor[len(DASK_PREFIX):])
@@ -60,7 +65,11 @@ def _pool_completed(fn, cases, workers) -> Iterator[tuple[int, dict]]:
         while pending:
             done, _ = wait(pending, return_when=FIRST_COMPLETED)
             for future in done:
-                yield pending.pop(future), future.result()
+                try:
+                    result = future.result()
+                except BrokenProcessPool as exc:
+                    raise WorkerLost(f"a local worker process died ({exc})") from None
+                yield pending.pop(future), result
     finally:
         # Terminate, not wait: Ctrl-C must not sit out the runs in flight (their results are lost
         # either way, and a rerun of a campaign runs them again).
@@ -99,8 +108,10 @@ def _dask_completed(fn, cases, address: str) -> Iterator[tuple[int, dict]]:
         # pure=False: two equal cases are still two runs (Dask would otherwise merge them).
         futures = [client.submit(fn, *case, pure=False) for case in cases]
         index = {f.key: k for k, f in enumerate(futures)}
-        for future, result in as_completed(futures, with_results=True):
-            yield index[future.key], result
+        for future in as_completed(futures):
+            if future.status != "finished":  # the scheduler gave up on it (KilledWorker: its workers died)
+                raise WorkerLost(f"Dask could not run a case: {future.exception()!r}")
+            yield index[future.key], future.result()
     finally:
         client.cancel(futures)
         client.close()
