@@ -1,13 +1,13 @@
 """Campaign throughput: a campaign's wall time against the sum of its runs' single-process times
 divided by the workers (the floor a perfect pool would reach).
 
-    .venv/bin/python benchmarks/bench_campaign.py [--workers 1,2] [--repeats 2] [--duration 5]
+    .venv/bin/python benchmarks/bench_campaign.py [--workers 1,2] [--repeats 2] [--duration 20] [--seeds 2]
         [--out benchmarks/results/campaign.json]
 
 A (campaign): ``fxswarm campaign configs/paper-fast.toml`` as a user runs it (a fresh process
 and a fresh folder: planning, worker start-up, each run appended to runs.jsonl), over
-loss 0,0.2,0.4,0.6 x laws fixed-time,asymptotic x 1 seed (8 runs), ``--grid
-scenario.duration=D``. B (floor): the same 8 runs one after the other in this process
+loss 0,0.2,0.4,0.6 x laws fixed-time,asymptotic x 2 seeds (16 runs), ``--grid
+scenario.duration=D``. B (floor): the same 16 runs one after the other in this process
 (:func:`fxswarm.study.campaign.run_case`, what a worker calls), their times summed and divided
 by the workers. Interleaved A B A B per worker count; overhead = A / B - 1. On a shared machine
 two workers also slow each other (the floor assumes perfect scaling): ``in_campaign_runs_s`` is
@@ -36,17 +36,17 @@ LOSSES = "0,0.2,0.4,0.6"
 LAWS = "fixed-time,asymptotic"
 
 
-def campaign_argv(out: Path, workers: int, duration: float) -> list[str]:
+def campaign_argv(out: Path, workers: int, duration: float, seeds: int) -> list[str]:
     return [sys.executable, "-m", "fxswarm.cli", "campaign", str(CONFIG), "--out", str(out), "--fault", FAULT,
             "--grid", f"loss={LOSSES}", "--grid", f"scenario.duration={duration:g}", "--laws", LAWS,
-            "--workers", str(workers), "--quiet"]
+            "--seeds", str(seeds), "--workers", str(workers), "--quiet"]
 
 
-def time_campaign(workers: int, duration: float) -> dict:
+def time_campaign(workers: int, duration: float, seeds: int) -> dict:
     folder = Path(tempfile.mkdtemp(prefix="bench-campaign-"))
     try:
         start = time.perf_counter()
-        subprocess.run(campaign_argv(folder / "c", workers, duration), check=True, stdin=subprocess.DEVNULL,
+        subprocess.run(campaign_argv(folder / "c", workers, duration, seeds), check=True, stdin=subprocess.DEVNULL,
                        capture_output=True)
         wall = time.perf_counter() - start
         runs = [json.loads(line) for line in (folder / "c" / "runs.jsonl").read_text().splitlines()]
@@ -55,7 +55,7 @@ def time_campaign(workers: int, duration: float) -> dict:
         shutil.rmtree(folder, ignore_errors=True)
 
 
-def time_floor(workers: int, duration: float) -> dict:
+def time_floor(workers: int, duration: float, seeds: int) -> dict:
     """The same runs, each alone in this process, one after the other."""
     from fxswarm.core.scenario import load
     from fxswarm.study.campaign import run_case
@@ -65,7 +65,7 @@ def time_floor(workers: int, duration: float) -> dict:
     folder = Path(tempfile.mkdtemp(prefix="bench-floor-"))
     try:
         plan = make_plan(str(CONFIG), base, folder, [FAULT], [parse_axis(f"loss={LOSSES}"),
-                         parse_axis(f"scenario.duration={duration:g}")], LAWS.split(","), 1, 0,
+                         parse_axis(f"scenario.duration={duration:g}")], LAWS.split(","), seeds, 0,
                          Criteria(base.d / 2, None, base.settle_tolerance))
         times = []
         for run in plan.runs:
@@ -81,15 +81,16 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--workers", default="1,2")
     p.add_argument("--repeats", type=int, default=2)
-    p.add_argument("--duration", type=float, default=5.0)
+    p.add_argument("--duration", type=float, default=20.0)
+    p.add_argument("--seeds", type=int, default=2)
     p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "campaign.json"))
     args = p.parse_args()
     rows = []
     for workers in [int(w) for w in args.workers.split(",")]:
         pairs = []
         for _ in range(args.repeats):  # A B A B
-            a = time_campaign(workers, args.duration)
-            b = time_floor(workers, args.duration)
+            a = time_campaign(workers, args.duration, args.seeds)
+            b = time_floor(workers, args.duration, args.seeds)
             pairs.append({"campaign": a, "floor": b, "overhead": a["wall_s"] / b["floor_s"] - 1.0,
                           "load_avg": round(os.getloadavg()[0], 2)})
             print(f"workers {workers}: campaign {a['wall_s']:.2f} s, floor {b['floor_s']:.2f} s "
@@ -100,7 +101,7 @@ def main() -> None:
                      "goal": "overhead under 10 %"})
     write_json(args.out, {"benchmark": "campaign throughput", "command": " ".join(sys.argv),
                           "config": str(CONFIG.relative_to(ROOT)), "fault": FAULT, "losses": LOSSES, "laws": LAWS,
-                          "duration_s": args.duration, "machine": machine(), "rows": rows})
+                          "duration_s": args.duration, "seeds": args.seeds, "machine": machine(), "rows": rows})
     print(f"wrote {args.out}", file=sys.stderr)
 
 
