@@ -4,6 +4,7 @@ runs confirmed as a distributed lock-step swarm over Zenoh."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -93,25 +94,34 @@ def test_a_recorded_run_replayed_alone_with_its_command_line_gives_the_same_outc
         assert again["metrics"]["messages"]["dropped"] > 0  # the faults acted
 
 
-def test_a_campaign_killed_part_way_and_run_again_has_every_run_exactly_once(tmp_path):
-    out = tmp_path / "c"
-    argv = campaign_argv(out, "--seeds", "2", "--workers", "2", duration=2.0)
-    proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+@contextlib.contextmanager
+def campaign_under_way(out: Path, lines: int):
+    """A 16-run campaign started as a process (its own session), once ``lines`` runs are in
+    runs.jsonl (polled, with a timeout); whatever the test leaves running is killed after it."""
+    proc = subprocess.Popen(campaign_argv(out, "--seeds", "2", "--workers", "2", duration=2.0),
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             start_new_session=True)
     runs = out / "runs.jsonl"
     end = time.monotonic() + 180
     try:
-        while not (runs.is_file() and runs.read_text().count("\n") >= 2):
+        while not (runs.is_file() and runs.read_text().count("\n") >= lines):
             assert proc.poll() is None, proc.stderr.read().decode()
-            assert time.monotonic() < end, "no run finished within 180 s"
+            assert time.monotonic() < end, f"fewer than {lines} runs finished within 180 s"
             time.sleep(0.02)
+        yield proc
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(10)
+        proc.stderr.close()
+
+
+def test_a_campaign_killed_part_way_and_run_again_has_every_run_exactly_once(tmp_path):
+    out = tmp_path / "c"
+    with campaign_under_way(out, 2) as proc:
         workers = descendants(proc.pid)
         proc.send_signal(signal.SIGKILL)  # the campaign dies at once: no clean-up of its own
         proc.wait(10)
-    finally:
-        proc.stderr.close()
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
     wait_gone(workers)  # its workers see their parent gone and leave on their own
     before = records(out)
     assert 2 <= len(before) < 16, "the campaign was not killed part-way"
@@ -127,22 +137,12 @@ def test_a_campaign_killed_part_way_and_run_again_has_every_run_exactly_once(tmp
 
 def test_ctrl_c_stops_the_campaign_and_its_workers_keeping_whole_lines(tmp_path):
     out = tmp_path / "c"
-    proc = subprocess.Popen(campaign_argv(out, "--seeds", "2", "--workers", "2", duration=2.0),
-                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    runs = out / "runs.jsonl"
-    end = time.monotonic() + 180
-    try:
-        while not (runs.is_file() and runs.read_text().count("\n") >= 1):
-            assert proc.poll() is None and time.monotonic() < end
-            time.sleep(0.02)
+    with campaign_under_way(out, 1) as proc:
         workers = descendants(proc.pid)
         assert workers, "no worker processes"
         proc.send_signal(signal.SIGINT)
         code = proc.wait(30)
         err = proc.stderr.read().decode()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
     assert code == 130 and "interrupted" in err, err
     wait_gone(workers)
     recs = records(out)
@@ -153,14 +153,7 @@ def test_ctrl_c_stops_the_campaign_and_its_workers_keeping_whole_lines(tmp_path)
 
 def test_a_killed_worker_ends_the_campaign_keeping_every_finished_run_and_the_rest_runs_again(tmp_path):
     out = tmp_path / "c"
-    argv = campaign_argv(out, "--seeds", "2", "--workers", "2", duration=2.0)
-    proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    runs = out / "runs.jsonl"
-    end = time.monotonic() + 180
-    try:
-        while not (runs.is_file() and runs.read_text().count("\n") >= 1):
-            assert proc.poll() is None and time.monotonic() < end
-            time.sleep(0.02)
+    with campaign_under_way(out, 1) as proc:
         workers = [p for p in descendants(proc.pid)
                    if b"spawn_main" in Path(f"/proc/{p}/cmdline").read_bytes()
                    and b"resource_tracker" not in Path(f"/proc/{p}/cmdline").read_bytes()]
@@ -168,9 +161,6 @@ def test_a_killed_worker_ends_the_campaign_keeping_every_finished_run_and_the_re
         os.kill(workers[0], signal.SIGKILL)  # as the kernel's OOM killer would
         code = proc.wait(60)
         err = proc.stderr.read().decode()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
     assert code == 1 and "worker process died" in err, err
     wait_gone(workers)
     before = records(out)
