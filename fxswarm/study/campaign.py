@@ -173,6 +173,7 @@ def main(args: argparse.Namespace) -> int:
         print(f"fxswarm campaign: {exc}", file=sys.stderr)
         return 2
     code = run_campaign(plan, out, records, args)
+    records = read_runs(out, plan.fingerprint)  # the file is the truth: a Ctrl-C may fall between write and dict
     doc = campaign_document(plan, records)
     path = write_document(out, doc)
     t = doc["totals"]
