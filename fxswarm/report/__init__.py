@@ -1,4 +1,5 @@
-"""``fxswarm report DIR [--snapshot]``: PNG figures and ``index.md`` from a run folder.
+"""``fxswarm report DIR [--snapshot]``: PNG figures and ``index.md`` from a run folder, or
+from a campaign's folder (``campaign.json``: :mod:`.campaign`).
 
 Reads ``DIR/trajectory.npz`` and ``DIR/summary.json`` (the scenario is found
 from the summary's ``source``), and ``DIR/sweep.json`` when a fixed-time
@@ -21,7 +22,8 @@ SETTLING = "settling_vs_initial_error.png"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("dir", help="run folder (trajectory.npz, summary.json; sweep.json if any)")
+    p.add_argument("dir", help="run folder (trajectory.npz, summary.json; sweep.json if any), or a campaign "
+                   "folder (campaign.json)")
     p.add_argument("--snapshot", action="store_true",
                    help="also render the Rerun viewer's default blueprint to PNG, headless")
     p.add_argument("--recording", action="store_true",
@@ -90,6 +92,12 @@ def main(args: argparse.Namespace) -> int:
     from fxswarm.report.index import write_index
 
     run = Path(args.dir)
+    if (run / "campaign.json").is_file():  # a campaign's folder (`fxswarm campaign`)
+        from fxswarm.report.campaign import write_campaign_report
+
+        for path in write_campaign_report(run):
+            print(f"wrote {path}")
+        return 0
     for name in ("trajectory.npz", "summary.json"):
         if not (run / name).is_file():
             print(f"fxswarm report: {run / name}: no such file (expected a run folder from "

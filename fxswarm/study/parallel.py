@@ -1,36 +1,117 @@
-"""Running independent simulations on several cores (spawned workers, never forked)."""
+"""Running independent simulations on several cores (spawned workers, never forked), or on a
+Dask distributed cluster."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from multiprocessing import get_context
+import multiprocessing
+import os
+import signal
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+
+#: ``--executor`` value that sends the work to a Dask scheduler: ``dask://HOST:PORT``.
+DASK_PREFIX = "dask://"
 
 
-def _apply(job: tuple[Callable[..., dict], tuple]) -> dict:
-    fn, case = job
-    return fn(*case)
+class WorkerLost(RuntimeError):
+    """A worker process died (killed, out of memory) with a case in hand: its result is lost."""
 
 
 def parallel_map(fn: Callable[..., dict], cases: Sequence[tuple], workers: int,
                  progress: Callable[[dict, int, int], None] | None = None) -> list[dict]:
     """``[fn(*case) for case in cases]`` on ``workers`` spawned processes, in completion order.
 
-    ``fn`` must be importable at module level (spawned workers re-import it). Spawn, not
-    fork: a fork would copy whatever sessions or threads the parent holds. The pool is
-    terminated on the way out, so Ctrl-C or an exception in any case stops every worker
-    at once. With ``workers <= 1`` it runs here, in order. ``progress(result, done,
-    total)`` is called after each case.
+    ``progress(result, done, total)`` is called after each case. See :func:`completed`.
     """
     results: list[dict] = []
-    if workers <= 1:
-        for case in cases:
-            results.append(fn(*case))
-            if progress:
-                progress(results[-1], len(results), len(cases))
-        return results
-    with get_context("spawn").Pool(min(workers, len(cases)) or 1) as pool:  # __exit__ terminates
-        for result in pool.imap_unordered(_apply, [(fn, case) for case in cases]):
-            results.append(result)
-            if progress:
-                progress(result, len(results), len(cases))
+    for _, result in completed(fn, cases, workers):
+        results.append(result)
+        if progress:
+            progress(result, len(results), len(cases))
     return results
+
+
+def completed(fn: Callable[..., dict], cases: Sequence[tuple], workers: int,
+              executor: str | None = None) -> Iterator[tuple[int, dict]]:
+    """``(k, fn(*cases[k]))`` for every case, as each finishes.
+
+    ``fn`` must be importable at module level (workers import it again). ``executor``: None
+    for local worker processes (``workers`` of them; with ``workers <= 1`` the cases run
+    here, in order), or ``dask://HOST:PORT`` for a Dask distributed scheduler. Spawn, not
+    fork: a fork would copy whatever sessions or threads the parent holds. Leaving the loop
+    early (Ctrl-C, an exception, ``break``) stops every worker process at once; a worker that
+    dies raises :class:`WorkerLost` instead of hanging.
+    """
+    if executor is not None and executor.startswith(DASK_PREFIX):
+        yield from _dask_completed(fn, cases, executor[len(DASK_PREFIX):])
+    elif executor not in (None, "local"):
+        raise ValueError(f"executor: expected 'local' or '{DASK_PREFIX}HOST:PORT', got {executor!r}")
+    elif workers <= 1:
+        for k, case in enumerate(cases):
+            yield k, fn(*case)
+    else:
+        yield from _pool_completed(fn, cases, workers)
+
+
+def _pool_completed(fn, cases, workers) -> Iterator[tuple[int, dict]]:
+    context = multiprocessing.get_context("spawn")
+    pool = ProcessPoolExecutor(min(workers, len(cases)) or 1, mp_context=context, initializer=_worker_started,
+                               initargs=(os.getpid(),))
+    try:
+        pending = {pool.submit(fn, *case): k for k, case in enumerate(cases)}
+        while pending:
+            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for future in done:
+                try:
+                    result = future.result()
+                except BrokenProcessPool as exc:
+                    raise WorkerLost(f"a local worker process died ({exc})") from None
+                yield pending.pop(future), result
+    finally:
+        # Terminate, not wait: Ctrl-C must not sit out the runs in flight (their results are lost
+        # either way, and a rerun of a campaign runs them again).
+        pool.shutdown(wait=False, cancel_futures=True)
+        for child in multiprocessing.active_children():
+            child.terminate()
+        for child in multiprocessing.active_children():
+            child.join(5.0)
+
+
+def _worker_started(parent: int) -> None:
+    """In each local worker: Ctrl-C is the parent's to handle (it stops the workers), and a
+    worker whose parent died (SIGKILL) exits instead of waiting for work forever."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(0.5)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True, name="parent-watch").start()
+
+
+def _dask_completed(fn, cases, address: str) -> Iterator[tuple[int, dict]]:
+    try:
+        from distributed import Client, as_completed
+    except ImportError:
+        raise ValueError(f"executor {DASK_PREFIX}{address}: Dask is not installed "
+                         "(pip install 'fxswarm[campaign]')") from None
+    try:
+        client = Client(address, timeout="10s")
+    except OSError as exc:
+        raise ValueError(f"executor {DASK_PREFIX}{address}: no Dask scheduler answers there ({exc})") from None
+    futures = []
+    try:
+        # pure=False: two equal cases are still two runs (Dask would otherwise merge them).
+        futures = [client.submit(fn, *case, pure=False) for case in cases]
+        index = {f.key: k for k, f in enumerate(futures)}
+        for future in as_completed(futures):
+            if future.status != "finished":  # the scheduler gave up on it (KilledWorker: its workers died)
+                raise WorkerLost(f"Dask could not run a case: {future.exception()!r}")
+            yield index[future.key], future.result()
+    finally:
+        client.cancel(futures)
+        client.close()
