@@ -69,8 +69,10 @@ def metrics(summary: dict) -> dict:
         "messages": {k: sum(int(c.get(k, 0)) for c in links.values()) for k in LINK_COUNTS},
         "degraded_ticks": {name: sum(per.values()) for name, per in (faults.get("degraded_ticks") or {}).items()},
     }
-    if "law_errors" in summary:  # the law API's count of ticks a law raised (issue 27)
-        out["law_errors"] = summary["law_errors"]
+    errors = (summary.get("law") or {}).get("errors") or {}
+    out["law_errors"] = {robot: e["ticks"] for robot, e in errors.items()}  # ticks a law failed, per robot
+    if errors:
+        out["law_error_first"] = next(iter(errors.values()))["first"]
     return out
 
 
@@ -85,6 +87,8 @@ def outcome(summary: dict, criteria: Criteria) -> dict:
         failed.append("not_settled")
     if not m["formation_error_final_m"] < criteria.final_error_m:
         failed.append("final_error")
+    if m["law_errors"]:  # a law that failed flew some ticks at zero: not the law's own result
+        failed.append("law_error")
     return {"success": not failed, "failed": failed, "metrics": m}
 
 

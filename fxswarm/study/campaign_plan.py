@@ -20,15 +20,13 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from fxswarm.core.scenario import VARIANTS, Scenario, ScenarioError, ScenarioWarning, parse
+from fxswarm.core.laws import BUILTIN_LAWS
+from fxswarm.core.scenario import Scenario, ScenarioError, ScenarioWarning, parse
 from fxswarm.core.tomltext import dump_toml
 from fxswarm.faults.plan import resolve
-from fxswarm.study.variants import variant_toml
 
 #: ``{name}`` in a fault template: filled by the grid axis ``name``.
 PLACEHOLDER = re.compile(r"\{([A-Za-z_][A-Za-z0-9_]*)\}")
-#: The built-in laws ``--laws`` names (besides ``module:Class``).
-BUILTIN_LAWS = VARIANTS
 
 
 class CampaignError(ValueError):
@@ -129,19 +127,19 @@ def law_label(table: dict) -> str:
 
 def scenario_table_with_law(table: dict, spec: str) -> dict:
     """A deep copy of scenario TOML ``table`` flying law ``spec``: a built-in name
-    (:data:`BUILTIN_LAWS`) or ``module:Class``.
+    (:data:`fxswarm.core.laws.BUILTIN_LAWS`) or ``module:Class``.
 
-    The one place a campaign chooses a law. Built-in names map onto ``[controller] variant``
-    and ``estimator_variant`` with the variant's gains (:func:`fxswarm.study.variants.variant_toml`,
-    as ``fxswarm sweep --variants`` does); ``module:Class`` sets ``[controller] law``.
+    The one place a campaign chooses a law: ``[controller] law``, the law API's own key
+    (docs/controllers.md), so a campaign flies every law as ``fxswarm sim`` does. The
+    base's ``variant``/``estimator_variant`` go: the law's name says its family.
     """
-    if spec in BUILTIN_LAWS:
-        return variant_toml(table, spec)
-    if re.fullmatch(r"[A-Za-z_][\w.]*:[A-Za-z_]\w*", spec):
-        out = copy.deepcopy(table)
-        out["controller"] = dict(out.get("controller") or {}, law=spec)
-        return out
-    raise CampaignError(f"--laws: expected built-in laws ({', '.join(BUILTIN_LAWS)}) or module:Class, got {spec!r}")
+    if spec not in BUILTIN_LAWS and not re.fullmatch(r"[A-Za-z_][\w.]*:[A-Za-z_]\w*", spec):
+        raise CampaignError(f"--laws: expected built-in laws ({', '.join(BUILTIN_LAWS)}) or module:Class, "
+                            f"got {spec!r}")
+    out = copy.deepcopy(table)
+    controller = {k: v for k, v in (out.get("controller") or {}).items() if k not in ("variant", "estimator_variant")}
+    out["controller"] = dict(controller, law=spec)
+    return out
 
 
 def fault_seed(seed: int, cell: dict, replicate: int) -> int:
