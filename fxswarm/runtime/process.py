@@ -46,6 +46,12 @@ CLOCKS = ("lockstep", "realtime")
 DEFAULT_WORLD_TIMEOUT_S = 60.0
 #: Lock-step: how long a process stays after the run is over for messages still on their way.
 DRAIN_S = 2.0
+#: A departure this close (s) to a router's is that router's outage (its clients' tokens go with
+#: it, and come back when they reconnect), not the process's death; a departure is judged only
+#: once this has passed.
+SETTLE_S = 0.3
+#: How long (s) a process lost with a router is waited for before it counts as gone.
+REJOIN_S = 30.0
 
 
 def add_process_arguments(p: argparse.ArgumentParser) -> None:
@@ -99,7 +105,12 @@ class RoleProcess:
         # Real time: a message older than --stale-after simulation s is counted stale.
         self.clock = SimClock(args.speed, args.stale_after if args.stale_after is not None else 5 * scenario.dt)
         self.alive: set[str] = set()  # tokens seen up (role/id)
-        self.gone: set[str] = set()  # tokens seen up, then down
+        self.gone: set[str] = set()  # tokens seen up, then down (and judged gone: settle())
+        self.departed: dict[str, float] = {}  # tokens down, not judged yet: name -> wall time
+        self.rejoining: dict[str, float] = {}  # lost with a router, expected back: name -> wall time
+        self.routers: set[str] = set()  # router tokens seen up now (router/<id>)
+        self.router_lost_at = -float("inf")  # wall time a router token last went
+        self.rejoined = 0  # router outages over: everyone lost with a router is back
         self.run_over = False  # the world's RUN_OVER token was seen: the run is over, this process leaves
         self.world_lost: Deadline | None = None  # running while the world is gone without ending the run
         self.drain_until: Deadline | None = None  # the run is over: waiting for its last messages
@@ -148,14 +159,17 @@ class RoleProcess:
         self.bus.wake()
 
     def check_parent(self) -> None:
+        """Stop if the launcher is gone; judge departures (:meth:`settle`): every loop calls this."""
+        self.settle()
         if self.parent_pid is not None and os.getppid() != self.parent_pid:
             self.stop("launcher gone")
 
     def watch(self, names: list[str]) -> None:
         """Track the liveliness of these ``role/id`` names in :attr:`alive` / :attr:`gone`
         (and, with the world's, whether it has ended the run: :meth:`exit_with_world`)."""
-        for name in names:
+        for name in [*names, "router/*"]:
             self.bus.watch_alive(name, self._on_alive)
+        self.bus.watch_router_links(self._on_alive)  # its own routers, token or not
         if "world/0" in names:
             self.bus.watch_tokens(topics.RUN_OVER, self._on_run_over)
 
@@ -164,12 +178,55 @@ class RoleProcess:
             self.run_over = True
 
     def _on_alive(self, name: str, up: bool) -> None:
+        now = self.wall_clock()
+        if name.startswith("router/"):
+            if up:
+                self.routers.add(name)
+                return
+            self.routers.discard(name)
+            self.router_lost_at = now
+            for other, when in list(self.departed.items()):  # they went with it
+                if now - when <= SETTLE_S:
+                    del self.departed[other]
+                    self.rejoining[other] = when
+            return
         if up:
             self.alive.add(name)
             self.gone.discard(name)
+            self.departed.pop(name, None)
+            if self.rejoining.pop(name, None) is not None and not self.rejoining:
+                self.rejoined += 1
         elif name in self.alive:
             self.alive.discard(name)
-            self.gone.add(name)
+            if now - self.router_lost_at <= SETTLE_S:
+                self.rejoining[name] = now
+            else:
+                self.departed[name] = now
+
+    def settle(self) -> None:
+        """Judge departures: one not explained by a router's going within ``SETTLE_S`` is a
+        process gone; one lost with a router and not back within ``REJOIN_S`` is gone too.
+        Until then neither is waited past (lock-step): a router outage must not make anyone act
+        on data the simulator would not have used."""
+        if not (self.departed or self.rejoining):
+            return
+        now = self.wall_clock()
+        for name, when in list(self.departed.items()):
+            if now - when > SETTLE_S:
+                del self.departed[name]
+                self.gone.add(name)
+        for name, when in list(self.rejoining.items()):
+            if now - when > REJOIN_S:
+                del self.rejoining[name]
+                self.gone.add(name)
+                print(f"fxswarm {self.role} {self.ident}: {name} lost with a router {REJOIN_S:g} s ago and not "
+                      f"back: counted gone", file=sys.stderr)
+                if not self.rejoining:
+                    self.rejoined += 1
+
+    def unsure(self) -> set[str]:
+        """Processes whose departure is not judged yet, or that went with a router (expected back)."""
+        return set(self.departed) | set(self.rejoining)
 
     def exit_with_world(self) -> None:
         """Stop once the world has ended the run (its ``RUN_OVER`` token, :meth:`end_run`).
@@ -232,7 +289,15 @@ class RoleProcess:
         self.core = unwrap(node)
         for pattern in node.subscriptions():
             self.bus.subscribe(pattern, self.deliver, reader=self.reader_for(pattern))
+        if self.lockstep and hasattr(self.core, "said_again"):
+            self.bus.subscribe(topics.RESYNC, self._asked_again)
         self.bus.declare_alive(self.role, self.ident)
+
+    def _asked_again(self, topic: str, msg: Message) -> None:
+        """The world asks again for its tick after a router outage: say again what was said for it.
+        Past the fault filters on purpose: a repeat of what was already sent (or lost on the way)."""
+        if not self.ended:
+            self.publish(self.core.said_again(msg.tick))
 
     def reader_for(self, pattern: str):
         """How this process reads the payloads on ``pattern`` (role-specific; default: all of it)."""
