@@ -31,7 +31,8 @@ from fxswarm.faults.plan import FaultPlan
 from fxswarm.faults.summary import build_summary
 from fxswarm.runtime.numbers import non_negative_int, positive
 from fxswarm.runtime.output import read_process_counters, write_run
-from fxswarm.runtime.process import REJOIN_S, RoleProcess, add_process_arguments, run_periodic_loop, wrap_node
+from fxswarm.runtime.liveness import REJOIN_S
+from fxswarm.runtime.process import RoleProcess, add_process_arguments, run_periodic_loop, wrap_node
 from fxswarm.runtime.config import load_or_exit
 from fxswarm.world.node import RealTimeWorld, TickTimer, WorldNode
 

@@ -36,6 +36,7 @@ from fxswarm.faults.plan import PLAN_ENV, FaultPlan
 from fxswarm.runtime.numbers import non_negative, positive
 from fxswarm.runtime.output import prepare_run_folder
 from fxswarm.runtime.config import process_plan_or_exit
+from fxswarm.runtime.liveness import Liveness
 from fxswarm.runtime.tls import identity
 from fxswarm.runtime.zenoh_bus import (ConnectError, ZenohBus, add_zenoh_arguments, log_zenoh_warnings,
                                        options_from_args, wait_until)
@@ -46,12 +47,6 @@ CLOCKS = ("lockstep", "realtime")
 DEFAULT_WORLD_TIMEOUT_S = 60.0
 #: Lock-step: how long a process stays after the run is over for messages still on their way.
 DRAIN_S = 2.0
-#: A departure this close (s) to a router's is that router's outage (its clients' tokens go with
-#: it, and come back when they reconnect), not the process's death; a departure is judged only
-#: once this has passed.
-SETTLE_S = 0.3
-#: How long (s) a process lost with a router is waited for before it counts as gone.
-REJOIN_S = 30.0
 
 
 def add_process_arguments(p: argparse.ArgumentParser) -> None:
@@ -104,13 +99,9 @@ class RoleProcess:
         self.lockstep = args.clock == "lockstep"
         # Real time: a message older than --stale-after simulation s is counted stale.
         self.clock = SimClock(args.speed, args.stale_after if args.stale_after is not None else 5 * scenario.dt)
-        self.alive: set[str] = set()  # tokens seen up (role/id)
-        self.gone: set[str] = set()  # tokens seen up, then down (and judged gone: settle())
-        self.departed: dict[str, float] = {}  # tokens down, not judged yet: name -> wall time
-        self.rejoining: dict[str, float] = {}  # lost with a router, expected back: name -> wall time
-        self.routers: set[str] = set()  # router tokens seen up now (router/<id>)
-        self.router_lost_at = -float("inf")  # wall time a router token last went
-        self.rejoined = 0  # router outages over: everyone lost with a router is back
+        # Tokens up (role/id) and judged gone; and who went with a router (fxswarm.runtime.liveness).
+        self.liveness = Liveness(wall_clock)
+        self.alive, self.gone = self.liveness.alive, self.liveness.gone
         self.run_over = False  # the world's RUN_OVER token was seen: the run is over, this process leaves
         self.world_lost: Deadline | None = None  # running while the world is gone without ending the run
         self.drain_until: Deadline | None = None  # the run is over: waiting for its last messages
@@ -178,55 +169,23 @@ class RoleProcess:
             self.run_over = True
 
     def _on_alive(self, name: str, up: bool) -> None:
-        now = self.wall_clock()
-        if name.startswith("router/"):
-            if up:
-                self.routers.add(name)
-                return
-            self.routers.discard(name)
-            self.router_lost_at = now
-            for other, when in list(self.departed.items()):  # they went with it
-                if now - when <= SETTLE_S:
-                    del self.departed[other]
-                    self.rejoining[other] = when
-            return
-        if up:
-            self.alive.add(name)
-            self.gone.discard(name)
-            self.departed.pop(name, None)
-            if self.rejoining.pop(name, None) is not None and not self.rejoining:
-                self.rejoined += 1
-        elif name in self.alive:
-            self.alive.discard(name)
-            if now - self.router_lost_at <= SETTLE_S:
-                self.rejoining[name] = now
-            else:
-                self.departed[name] = now
+        self.liveness.change(name, up)
 
     def settle(self) -> None:
-        """Judge departures: one not explained by a router's going within ``SETTLE_S`` is a
-        process gone; one lost with a router and not back within ``REJOIN_S`` is gone too.
-        Until then neither is waited past (lock-step): a router outage must not make anyone act
-        on data the simulator would not have used."""
-        if not (self.departed or self.rejoining):
-            return
-        now = self.wall_clock()
-        for name, when in list(self.departed.items()):
-            if now - when > SETTLE_S:
-                del self.departed[name]
-                self.gone.add(name)
-        for name, when in list(self.rejoining.items()):
-            if now - when > REJOIN_S:
-                del self.rejoining[name]
-                self.gone.add(name)
-                print(f"fxswarm {self.role} {self.ident}: {name} lost with a router {REJOIN_S:g} s ago and not "
-                      f"back: counted gone", file=sys.stderr)
-                if not self.rejoining:
-                    self.rejoined += 1
+        """Judge departures (:class:`~fxswarm.runtime.liveness.Liveness`); say who, lost with a
+        router, never came back."""
+        for name in self.liveness.settle():
+            print(f"fxswarm {self.role} {self.ident}: {name} went with a router {self.liveness.rejoin_s:g} s ago "
+                  f"and is not back: counted gone", file=sys.stderr)
+
+    @property
+    def rejoined(self) -> int:
+        """Router outages over so far (everyone lost with a router is back, or judged gone)."""
+        return self.liveness.rejoined
 
     def unsure(self) -> set[str]:
-        """Processes whose departure is not judged yet, or that went with a router (expected back)."""
-        return set(self.departed) | set(self.rejoining)
+        """Processes that left without being judged gone yet, or went with a router (expected back)."""
+        return self.liveness.unsure()
 
     def exit_with_world(self) -> None:
         """Stop once the world has ended the run (its ``RUN_OVER`` token, :meth:`end_run`).
