@@ -181,11 +181,16 @@ class Death:
     child: Child
     code: int
     restarted: bool = False  # a router the launcher has started again (supervision)
+    pid: int | None = None  # the one that died (a restarted child has a new one)
+
+    def __post_init__(self) -> None:
+        if self.pid is None:
+            self.pid = self.child.pid
 
     def describe(self) -> str:
         how = f"killed by {signal.Signals(-self.code).name}" if self.code < 0 else f"exit code {self.code}"
         tail = self.child.tail()
-        text = f"{self.child.name} (pid {self.child.pid}) died: {how}"
+        text = f"{self.child.name} (pid {self.pid}) died: {how}"
         if tail:
             text += "; its last output:\n" + "\n".join("    " + line for line in tail)
         return text

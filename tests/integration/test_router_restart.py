@@ -164,3 +164,32 @@ def test_secure_failover_gets_nothing_through_a_rogue_router(tmp_path, protected
         assert report["forged"] >= 4 and landed == [] and report["heard"] == 0, (len(landed), report)
     else:
         assert landed and report["heard"] > 0, (len(landed), report)
+
+
+def test_fxswarm_run_restarts_a_crashed_router_says_so_and_exits_0(tmp_path):
+    """The command a user runs: the router SIGKILLed under `fxswarm run` (routed) is started again
+    on its port, the console says so, the run completes and the launcher exits 0."""
+    import subprocess
+
+    from fxswarm.testing import scenario_with
+
+    from support import PAPER_FAST, fxswarm_command
+    from test_runtime_shutdown import children_of, wait_for_line
+
+    config = scenario_with(PAPER_FAST, tmp_path, duration=6.0)
+    launcher = subprocess.Popen(fxswarm_command("run", str(config), "--out", str(tmp_path / "run"), "--no-logger",
+                                                "--topology", "routed"),
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        wait_for_line(launcher, "processes up")
+        (router,) = [pid for pid, cmd in children_of(launcher.pid).items() if " router " in cmd]
+        os.kill(router, signal.SIGKILL)
+        out, err = launcher.communicate(timeout=300)
+    finally:
+        if launcher.poll() is None:
+            os.killpg(launcher.pid, signal.SIGKILL)
+            launcher.wait()
+    assert launcher.returncode == 0, err
+    assert f"router (pid {router}) died: killed by SIGKILL; started it again (restart 1 of at most 10)" in err, err
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["complete"] and summary["missed_ticks"] == 0 and summary["launcher"]["router_restarts"] == 1
