@@ -26,6 +26,7 @@ import argparse
 import importlib.util
 import json
 import os
+import shlex
 import signal
 import socket
 import subprocess
@@ -66,7 +67,8 @@ LOGGER_GRACE_S = 15.0
 #: Supervision: a router that dies is started again, at most this many times in a run (one that
 #: keeps dying, e.g. its port taken, ends a routed run as before).
 MAX_ROUTER_RESTARTS = 10
-#: The official router's binary to start instead of `fxswarm router` (`make test-zenohd` sets it).
+#: The official router's binary (a command line) to start instead of `fxswarm router`, as
+#: ``ZENOHD -c FILE`` (`make test-zenohd` sets it).
 ZENOHD_ENV = "FXSWARM_ZENOHD"  # at the end of a run, time for the logger to close its recording by itself
 
 
@@ -319,7 +321,7 @@ class Swarm:
                     "--swarm", self.swarm, "--scenario", self.config,  # for `fxswarm attach`
                     *secure]
             if self.zenohd:
-                argv = [self.zenohd, "-c", str(self._zenohd_config(name, endpoint))]
+                argv = [*shlex.split(self.zenohd), "-c", str(self._zenohd_config(name, endpoint))]
             out.append(Child(name, "router", i, argv, logs / f"{name}.log"))
         if self.logger and logger_available():
             out.append(Child("logger", "logger", 0, self._role_argv("logger", list(self.logger_args)),

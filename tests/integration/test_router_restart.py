@@ -62,6 +62,27 @@ def test_lockstep_run_survives_a_router_restart_bit_identical(launch_swarm, secu
     swarm.assert_matches_sim()
 
 
+@pytest.mark.parametrize("secure", [False, True], ids=["plain", "secure"])
+def test_a_router_without_a_token_restarted_is_seen_by_each_process_own_link(launch_swarm, secure, tmp_path,
+                                                                              monkeypatch):
+    """zenohd declares no alive/router token: a stand-in started as zenohd is (`-c FILE`, the
+    configuration fxswarm run writes for it, keys and rules included) restarted mid-run; each
+    process sees the outage by its own link to the router, and the run equals fxswarm sim."""
+    import sys
+
+    if not os.environ.get("FXSWARM_ZENOHD"):
+        monkeypatch.setenv("FXSWARM_ZENOHD", f"{sys.executable} tests/integration/tokenless_router.py")
+    swarm = launch_swarm(topology="routed", duration=6.0, secure=keys_for(tmp_path, secure))
+    assert (swarm.out / "router.zenohd.json5").exists()
+    swarm.wait_for_sim_time(1.0, timeout=120)
+    old = kill_router_unplanned(swarm)
+    wait_restarted(swarm, "router", old)
+    summary = swarm.wait_done(timeout=300)
+    assert summary["complete"] is True and summary["missed_ticks"] == 0, summary
+    assert asked_again(swarm) >= 1
+    swarm.assert_matches_sim()
+
+
 @pytest.mark.skipif(bool(os.environ.get("FXSWARM_ZENOHD")),
                     reason="zenohd declares no alive/router token: a process on the surviving router cannot tell "
                            "its peers' router went from their deaths (docs/routers.md)")
