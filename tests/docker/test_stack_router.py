@@ -18,16 +18,9 @@ import pytest
 
 from docker_support import TAG, leftovers, remove_stack, sh
 from fxswarm.launch.launcher import free_port
+from support import PAPER_FAST
 
 pytestmark = [pytest.mark.docker, pytest.mark.stack, pytest.mark.timeout(1800)]
-
-REPO = Path(__file__).resolve().parents[2]
-SCENARIO = REPO / "configs" / "paper-fast.toml"
-
-
-@pytest.fixture(scope="module")
-def images(swarm_mode, role_images):
-    return role_images
 
 
 def router_container(stack: str) -> str | None:
@@ -36,7 +29,7 @@ def router_container(stack: str) -> str | None:
     return ids[0] if ids else None
 
 
-def test_stack_router_killed_mid_run_is_restarted_by_swarm_and_the_run_completes(images):
+def test_stack_router_killed_mid_run_is_restarted_by_swarm_and_the_run_completes(stack_images):
     from fxswarm.core.scenario import load
     from fxswarm.launch.sim import Simulation
     from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions, wait_until
@@ -44,7 +37,7 @@ def test_stack_router_killed_mid_run_is_restarted_by_swarm_and_the_run_completes
     stack = f"fxrt{uuid.uuid4().hex[:8]}"
     folder = Path(tempfile.mkdtemp(prefix="fxswarm-stack-router-"))
     port = free_port()
-    text = SCENARIO.read_text()
+    text = Path(PAPER_FAST).read_text()
     assert "duration = 40.0" in text
     scenario = folder / "paper-fast-20.toml"
     scenario.write_text(text.replace("duration = 40.0", "duration = 20.0"))
