@@ -15,6 +15,9 @@ import signal
 import numpy as np
 import pytest
 
+from fxswarm.core.metrics import formation_errors
+from fxswarm.runtime.output import load_trajectory
+
 pytestmark = [pytest.mark.zenoh, pytest.mark.timeout(600)]
 
 
@@ -102,15 +105,19 @@ def test_two_routers_one_killed_for_good_the_run_completes_on_the_other(launch_s
 
 def test_realtime_run_goes_on_through_a_router_restart_and_recovers_formation(launch_swarm):
     # TODO(attach branch): assert summary["router_outages"] has one outage with an end.
-    swarm = launch_swarm(topology="routed", clock="realtime", speed=1.0, duration=14.0)
-    swarm.wait_for_sim_time(4.0, timeout=120)
+    # paper-fast whole, at twice real time (a 40 s flight in 20 s); the router killed at 10 s.
+    swarm = launch_swarm(topology="routed", clock="realtime", speed=2.0)
+    swarm.wait_for_sim_time(10.0, timeout=120)
     old = kill_router_unplanned(swarm)
     wait_restarted(swarm, "router", old)
     summary = swarm.wait_done(timeout=300)
     assert summary["complete"] is True, summary
-    data = np.load(swarm.out / "trajectory.npz")
-    err = np.linalg.norm(data["p"] - data["p0"][:, None, :] - data["offsets"], axis=2).max(axis=1)
-    assert err[-1] < 0.5, f"formation error at the end {err[-1]:.3f} m"
+    err = formation_errors(load_trajectory(swarm.out)).max(axis=1)
+    t = np.arange(len(err)) * swarm.scenario.dt
+    # The outage showed (robots stopped, the leader went on), and the formation recovered: the
+    # final error within the bound real-time paper-fast meets without an outage.
+    assert err[(t > 10.0) & (t < 20.0)].max() > summary["formation_error_final_m"], "no outage seen"
+    assert summary["formation_error_final_m"] <= 0.25, summary["formation_error_final_m"]
 
 
 @pytest.mark.parametrize("protected", [True, False], ids=["secure", "rules-off"])
