@@ -83,6 +83,7 @@ def test_stack_router_killed_mid_run_is_restarted_by_swarm_and_the_run_completes
             bus.close()
         remove_stack(stack)
     left = leftovers(stack)
+    sim = Simulation(load(str(scenario))).run()
     shutil.rmtree(folder, ignore_errors=True)
     assert left == [], left
     print(f"router killed at t = {killed_t:.2f} s; world: complete {own['complete']}, "
@@ -90,6 +91,5 @@ def test_stack_router_killed_mid_run_is_restarted_by_swarm_and_the_run_completes
     assert own["complete"] is True and own["ticks"] == 2000, own
     assert own["missed_ticks"] == 0, own  # held through the outage, never closed a tick without a robot
     assert own["processes"]["world-0"]["asked_again"] >= 1
-    sim = Simulation(load(str(scenario))).run()
     for key in ("min_object_distance_m", "formation_error_final_m", "estimate_error_final_m"):
         assert own[key] == sim[key], key
