@@ -129,8 +129,10 @@ def stack_document(sc: Scenario, swarm: str, wait_for: list[str], plan: FaultPla
 
     def service(role: str, command: list[str], condition: str, ident: str = "0", replicas: int = 1,
                 extra_env: dict | None = None) -> dict:
-        check = (["CMD-SHELL", f'fxswarm health {role} "$$FXSWARM_ID" --quiet'] if role == "agent"
-                 else ["CMD", "fxswarm", "health", role, ident, "--quiet"])
+        # A router restarting (Swarm restarts it) must not fail every other task's check meanwhile.
+        check = (["CMD-SHELL", f'fxswarm health {role} "$$FXSWARM_ID" --quiet --router-down-ok'] if role == "agent"
+                 else ["CMD", "fxswarm", "health", role, ident, "--quiet",
+                       *(["--router-down-ok"] if role != "router" else [])])
         if role == "router":
             # Swarm puts a task in its service's DNS only once it is healthy: the router asks itself.
             check += ["--connect", f"{scheme}/127.0.0.1:{ROUTER_PORT}"]

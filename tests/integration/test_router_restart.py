@@ -221,3 +221,20 @@ def test_fxswarm_run_restarts_a_crashed_router_says_so_and_exits_0(tmp_path):
     assert f"router (pid {router}) died: killed by SIGKILL; started it again (restart 1 of at most 10)" in err, err
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["complete"] and summary["missed_ticks"] == 0 and summary["launcher"]["router_restarts"] == 1
+
+
+def test_health_passes_while_the_router_cannot_be_reached_only_when_asked(tmp_path):
+    """A container's check (`fxswarm stack`, `k8s`) must not fail while its router restarts, or
+    the orchestrator kills every task; by hand, an unreachable router is still a failure."""
+    import subprocess
+
+    from fxswarm.launch.launcher import free_port
+
+    from support import fxswarm_command
+
+    nobody = f"tcp/127.0.0.1:{free_port()}"
+    ask = fxswarm_command("health", "agent", "1", "--swarm", "s", "--connect", nobody, "--timeout", "0.5", "--quiet")
+    plain = subprocess.run(ask, capture_output=True, text=True, timeout=60)
+    lenient = subprocess.run([*ask, "--router-down-ok"], capture_output=True, text=True, timeout=60)
+    assert plain.returncode == 1 and "cannot reach the router" in plain.stderr
+    assert lenient.returncode == 0 and "not judged" in lenient.stderr
