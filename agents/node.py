@@ -82,6 +82,8 @@ class AgentNode:
         self.acted_tick = -1
         self.acted_t: float | None = None  # real time: the simulation time of the last act, s
         self.last_command: topics.Outgoing | None = None  # real time: sent again if the world asks again
+        self.command_before: topics.Outgoing | None = None  # lock-step: the one before (said_again)
+        self.estimate_said: Estimate | None = None  # lock-step: the last estimate sent alone (said_again)
         # Lock-step pipelining: a robot sends its tick-(k+1) estimate as soon as it has acted on
         # tick k (the estimate is final then), so neighbours hold it before tick k+1's sensing
         # arrives; a neighbour's estimate for a tick after the one this robot acts on next waits
@@ -265,7 +267,23 @@ class AgentNode:
         self.seq_said += 1
         msg = Estimate("agent", self.id, self.seq_said, tick, t, self.id, self.ph.copy(),
                        self.vh.copy() if self.feedforward else None)
+        self.estimate_said = msg
         return self._command_topic, msg
+
+    def said_again(self, tick: int) -> list[topics.Outgoing]:
+        """Lock-step, the world asking again after a router outage: what this robot has said for
+        ``tick``, the same values numbered anew: its estimate for the tick (sent alone, or carried
+        by its previous command) and, if it has acted on it, its command. Receivers hold by tick,
+        so a repeat changes nothing; one lost with the router arrives now."""
+        out: list[topics.Outgoing] = []
+        said = [self.estimate_said, *(c[1] for c in (self.command_before, self.last_command) if c is not None)]
+        for m in said:
+            if type(m) is Command:
+                m = m if m.tick == tick else m.carried_estimate() if m.est_tick == tick else None
+            if m is not None and m.tick == tick:
+                self.seq_said += 1
+                out.append((self._command_topic, dataclasses.replace(m, seq=self.seq_said)))
+        return out
 
     def held_estimates(self, fresh_by: float = -np.inf, now: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The estimates this robot holds, shape (m, 3), neighbours in ascending id then the
@@ -375,7 +393,7 @@ class AgentNode:
         cmd = Command("agent", self.id, self.seq_said, s.tick, s.t, self.id, np.array(v), ph_used, avoid_active,
                       flags, self.link_ages(now), tuple(self.in_links.drops), vh_used if self.feedforward else None,
                       est_tick, est_t, est_ph, est_vh, law_error)
-        self.last_command = self._command_topic, cmd
+        self.command_before, self.last_command = self.last_command, (self._command_topic, cmd)
         return self.last_command
 
     def _numpy_view(self, p: list, rows: list, weights: list, offset: list, offset_rate: list, vh: list | None,

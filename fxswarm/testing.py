@@ -62,13 +62,14 @@ class SwarmUnderTest:
     def __init__(self, config: str | Path, out: str | Path, *, clock: str = "lockstep", speed: float = 1.0,
                  logger: bool = False, tick_timeout: float = 1.0, lease_ms: int | None = None,
                  topology: str | None = None, secure: str | Path | None = None, audit: bool = False,
-                 world_args: tuple[str, ...] = ()) -> None:
+                 world_args: tuple[str, ...] = (), routers: int = 1) -> None:
         from fxswarm.launch.launcher import Swarm
 
         swarm_name = f"test-{os.getpid()}-{next(_counter)}"
         self.swarm = Swarm(str(config), Path(out), clock=clock, speed=speed, swarm=swarm_name, logger=logger,
                            tick_timeout=tick_timeout, lease_ms=lease_ms, topology=topology,
-                           secure=str(secure) if secure else None, audit=audit, world_args=tuple(world_args))
+                           secure=str(secure) if secure else None, audit=audit, world_args=tuple(world_args),
+                           routers=routers)
         self.deaths: list = []  # unplanned deaths seen so far (launcher.Death)
 
     @property
@@ -227,12 +228,12 @@ def launch_swarm(tmp_path):
     def launch(config: str | Path = "configs/paper-fast.toml", *, clock: str = "lockstep", speed: float = 1.0,
                logger: bool = False, tick_timeout: float = 1.0, lease_ms: int | None = None, start: bool = True,
                topology: str | None = None, secure: str | Path | None = None, audit: bool = False,
-               world_args: tuple[str, ...] = (), **overrides: Any) -> SwarmUnderTest:
+               world_args: tuple[str, ...] = (), routers: int = 1, **overrides: Any) -> SwarmUnderTest:
         k = len(made) + 1
         path = scenario_with(config, tmp_path, **overrides) if overrides else Path(config)
         s = SwarmUnderTest(path, tmp_path / f"run-{k}", clock=clock, speed=speed, logger=logger,
                            tick_timeout=tick_timeout, lease_ms=lease_ms, topology=topology, secure=secure,
-                           audit=audit, world_args=world_args)
+                           audit=audit, world_args=world_args, routers=routers)
         made.append(s)
         if start:
             s.start()

@@ -43,6 +43,11 @@ class LeaderNode:
             return [self.act(k, msg.t if k == msg.tick else k * self.sc.dt) for k in range(first, last + 1)]
         return []
 
+    def said_again(self, tick: int) -> list[topics.Outgoing]:
+        """Lock-step, the world asking again after a router outage: the states already sent for
+        ``tick`` and the next one, the same values (``p0`` is a function of time alone)."""
+        return [self.act(k, k * self.sc.dt) for k in range(tick, min(tick + 1, self.sent_tick) + 1)]
+
     def act(self, tick: int, t: float) -> topics.Outgoing:
         self.seq += 1
         self.sent_tick = max(self.sent_tick, tick)

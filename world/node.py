@@ -27,7 +27,7 @@ from collections.abc import Callable, Collection
 import numpy as np
 
 from fxswarm.core import bus as topics
-from fxswarm.core.messages import Command, Message, Sense, WorldState
+from fxswarm.core.messages import Clock, Command, Message, Sense, WorldState
 from fxswarm.core.motion import Static
 from fxswarm.core.pacing import Deadline, Pacer, WallClock
 from fxswarm.core.scenario import Scenario
@@ -92,6 +92,7 @@ class WorldNode:
         self.law_errors: dict[int, str] = {}  # per robot: the first law_error message heard
         self._heard: set[int] = set()  # real time: robots heard since the last advance
         self._sensed: tuple | None = None
+        self._tick_said: list[topics.Outgoing] = []  # lock-step: the current tick's sensing, as sent
         # Static obstacles never move: their (read-only) state is built once, not every tick.
         self._fixed_obstacles = None
         if all(isinstance(o, Static) for o in scenario.obstacles):
@@ -292,7 +293,16 @@ class WorldNode:
             has = math.isfinite(dist_i)
             out.append((topics.sense_topic(r.id), Sense(
                 "world", 0, self.seq, k, t, r.id, p_i, po_i if has else None, vo_i if has else None)))
+        self._tick_said = out
         return out
+
+    def ask_again(self) -> list[topics.Outgoing]:
+        """Lock-step, after a router outage: the current tick's sensing again, as sent, and a
+        ``Clock`` on ``RESYNC`` asking everyone to say again what they said for this tick (each
+        holds by tick, so repeats change nothing; what was lost with the router arrives now)."""
+        if self.done:
+            return []
+        return [*self._tick_said, (topics.RESYNC, Clock("world", 0, self.seq, self.tick, self.t))]
 
     def _state_message(self) -> topics.Outgoing:
         obstacles, dist, _ = self._sensed if self._sensed is not None else self._sense_now()
@@ -337,32 +347,61 @@ class TickTimer:
     :meth:`WorldNode.timeout`), or at once when every robot still missing is gone. So a
     dead or frozen process never deadlocks the run."""
 
-    def __init__(self, world: WorldNode, timeout: float, clock: WallClock) -> None:
+    def __init__(self, world: WorldNode, timeout: float, clock: WallClock, ask_limit: float = 30.0) -> None:
         self.world = world
         self.deadline = Deadline(timeout, clock)
         self.tick = world.tick
+        self.clock = clock
+        self.ask_limit = ask_limit
+        self.asking: Deadline | None = None  # after a router outage: asking again instead of closing
+        self.asked = 0  # times the world asked again (for the summary)
 
     def wait_s(self) -> float:
         """Seconds until the current tick's deadline."""
         return self.deadline.wait_s()
 
-    def check(self, gone: Collection[int] = ()) -> list[topics.Outgoing]:
+    def check(self, gone: Collection[int] = (), unsure: bool = False) -> list[topics.Outgoing]:
         """Close the current tick if its deadline has passed or every robot it waits for is in
-        ``gone`` (robot ids whose process has left); a new tick restarts the deadline."""
+        ``gone`` (robot ids whose process has left); a new tick restarts the deadline.
+
+        ``unsure``: some process has left without being judged gone yet, or went with a router
+        and is expected back: the tick is held (its deadline restarts), since closing it could
+        make a robot act on data the simulator would not have used. After an outage
+        (:meth:`ask_again`) a passed deadline asks again, up to ``ask_limit`` s, instead of closing."""
         world = self.world
         if world.done:
             return []
         if world.tick != self.tick:
             self.tick = world.tick
             self.deadline.restart()
+            self.asking = None
+            return []
+        if unsure:
+            self.deadline.restart()
             return []
         waiting = world.waiting_for()
         if not self.deadline.passed() and not (waiting and all(r in gone for r in waiting)):
             return []
+        if self.asking is not None and not self.asking.passed() and self.deadline.passed():
+            self.deadline.restart()
+            self.asked += 1
+            return world.ask_again()
         out = world.timeout()
         self.tick = world.tick
         self.deadline.restart()
+        self.asking = None
         return out
+
+    def ask_again(self) -> list[topics.Outgoing]:
+        """A router outage is over (everyone lost with it is back): ask again for the current
+        tick now, and on each passed deadline until it closes (or ``ask_limit`` s pass)."""
+        if self.world.done:
+            return []
+        if self.asking is None:
+            self.asking = Deadline(self.ask_limit, self.clock)
+        self.deadline.restart()
+        self.asked += 1
+        return self.world.ask_again()
 
 
 class RealTimeWorld:

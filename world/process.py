@@ -40,6 +40,7 @@ from fxswarm.faults.plan import FaultPlan
 from fxswarm.faults.summary import build_summary
 from fxswarm.runtime.numbers import non_negative_int, positive
 from fxswarm.runtime.output import read_process_counters, write_run
+from fxswarm.runtime.liveness import REJOIN_S
 from fxswarm.runtime.record import Record, RecordServer
 from fxswarm.runtime.process import RoleProcess, add_process_arguments, run_periodic_loop, wrap_node
 from fxswarm.runtime.config import load_or_exit
@@ -159,19 +160,24 @@ def wait_for_everyone(proc: RoleProcess, timeout: float, also: tuple[str, ...] =
     return [n for n in needed if n not in proc.alive]
 
 
-def run_lockstep(proc: RoleProcess, tick_timeout: float) -> None:
+def run_lockstep(proc: RoleProcess, tick_timeout: float) -> int:
     """The tick protocol runs in the handlers; this loop only wakes for the tick's deadline
     and departures (:class:`~fxswarm.world.node.TickTimer` decides; 0.1 s late at most to
     see a new tick: a deadline is never early)."""
     world: WorldNode = proc.core
     proc.publish(world.start())
-    timer = TickTimer(world, tick_timeout, proc.wall_clock)  # tick 0's deadline starts now
+    timer = TickTimer(world, tick_timeout, proc.wall_clock, REJOIN_S)  # tick 0's deadline starts now
+    outages = proc.rejoined
     while not world.done and not proc.stopping:
         proc.bus.poll(min(0.1, timer.wait_s()), stay=not proc.gone)
         if world.done:
             break
-        proc.publish(timer.check(gone_robots(proc)))
         proc.check_parent()
+        if proc.rejoined != outages:  # a router outage is over: whatever it swallowed is asked for again
+            outages = proc.rejoined
+            proc.publish(timer.ask_again())
+        proc.publish(timer.check(gone_robots(proc), unsure=bool(proc.unsure())))
+    return timer.asked
 
 
 def gone_robots(proc: RoleProcess) -> set[int]:
@@ -255,7 +261,7 @@ def main(args: argparse.Namespace) -> int:
         started = time.perf_counter()
         extra["waited_s"] = started - start
         if proc.lockstep:
-            run_lockstep(proc, args.tick_timeout)
+            extra["asked_again"] = run_lockstep(proc, args.tick_timeout)
         else:
             extra.update(run_realtime(proc, unwrap_realtime(node), link))
         world: WorldNode = proc.core

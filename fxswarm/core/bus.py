@@ -28,6 +28,10 @@ LEADER_STATE = "leader/state"
 #: never on a crash: the others tell "the run is over" from "the world is lost" (a network cut
 #: longer than the Zenoh lease, a frozen or killed world) by it.
 RUN_OVER = "run/over"
+#: Lock-step, after a router outage: the world asks everyone again for its current tick (a
+#: ``Clock``); each answers with what it has already said for that tick (messages put while a
+#: router was down are lost, and receivers hold by tick, so a repeat changes nothing).
+RESYNC = "world/again"
 #: The scenario file's text, answered by the router (``fxswarm router --scenario``) to observers.
 SCENARIO = "scenario"
 #: The world's own record of the run (summary and trajectory), answered by the world once the run

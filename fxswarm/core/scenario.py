@@ -383,10 +383,10 @@ def _logging(lf: _Fields) -> dict:
 
 def _zenoh(zf: _Fields) -> dict:
     """[zenoh], checked as the command line's Zenoh options are."""
-    zf.check_known({"swarm", "mode", "connect", "listen", "multicast", "lease_ms", "topology"})
+    zf.check_known({"swarm", "mode", "connect", "listen", "multicast", "lease_ms", "topology", "routers"})
     out: dict = {}
     for key in zf.table:
-        if key in ("connect", "listen"):
+        if key in ("connect", "listen", "routers"):
             out[key] = zf.strings(key)
         elif key == "multicast":
             out[key] = zf.boolean(key)

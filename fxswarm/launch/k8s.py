@@ -10,7 +10,9 @@ mesh) without cross-talk:
 * ``<swarm>-scenario`` ConfigMap: the scenario file, mounted into every pod;
 * ``<swarm>-router`` Deployment + Service (port 7447): the Zenoh router all
   processes are clients of; reach it from outside with ``kubectl
-  port-forward svc/<swarm>-router 7447`` and ``fxswarm attach``;
+  port-forward svc/<swarm>-router 7447`` and ``fxswarm attach``. ``--routers 2``:
+  also ``<swarm>-router-1``, meshed with it, the two pods spread over nodes
+  (``topologySpreadConstraints`` on the host name); every process lists both;
 * ``<swarm>-agent`` StatefulSet with the robot count as replicas (+ its
   headless Service): pod ordinal k is robot k + 1 (the entrypoint reads it
   from the pod name); ``podManagementPolicy: Parallel`` starts them all at
@@ -68,6 +70,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the world's clock: lockstep (bit-identical to `fxswarm sim`) or realtime (default lockstep)")
     p.add_argument("--wait-for", action="append", default=None, metavar="ROLE/ID",
                    help="what the world waits for besides the leader and agents (default logger/0)")
+    p.add_argument("--routers", type=int, choices=(1, 2, 3), default=1,
+                   help="router Deployments (each with its Service), meshed with each other and spread over "
+                        "nodes; every process lists them all and fails over (default 1)")
     p.add_argument("--kustomize", action="store_true",
                    help="also write kustomization.yaml (then apply with -k DIR, not -f DIR)")
     add_fault_and_secure_arguments(p, "container", "the keys go into Kubernetes Secrets in DIR/secrets.yaml")
@@ -83,7 +88,7 @@ def dns_name(swarm: str) -> str:
 
 def manifests(sc: Scenario, scenario_text: str, swarm: str, tag: str = "latest", clock: str = "lockstep",
               wait_for: list[str] | None = None, plan: FaultPlan | None = None,
-              keys: Path | None = None, law: tuple[str, str] | None = None) -> dict[str, list[dict]]:
+              keys: Path | None = None, law: tuple[str, str] | None = None, routers: int = 1) -> dict[str, list[dict]]:
     """File name -> the Kubernetes objects it holds.
 
     ``plan``: the run's resolved fault plan (default: the scenario's ``[faults]``); ``keys``:
@@ -92,9 +97,10 @@ def manifests(sc: Scenario, scenario_text: str, swarm: str, tag: str = "latest",
     (:func:`fxswarm.launch.compose.law_module`), carried in the scenario's ConfigMap onto
     every role's PYTHONPATH, or None.
     """
-    router_host = f"{swarm}-router"
     scheme = "tls" if keys is not None else "tcp"
-    connect = f"{scheme}/{router_host}:{ROUTER_PORT}"
+    router_names = ["router" if i == 0 else f"router-{i}" for i in range(routers)]
+    endpoints = [f"{scheme}/{swarm}-{name}:{ROUTER_PORT}" for name in router_names]
+    connect = endpoints[0]
     labels = {"app.kubernetes.io/part-of": "fxswarm", "fxswarm/swarm": swarm}
     run = f"{IN_CONTAINER_RUNS}/{sc.name}"
     # Kubernetes expands $(NAME) in env values and reduces $$ to $: a literal $ is written $$.
@@ -109,6 +115,8 @@ def manifests(sc: Scenario, scenario_text: str, swarm: str, tag: str = "latest",
         check = f"fxswarm health {role} {ident} --quiet"
         if role == "router":  # its Service routes to it only once it is ready: it asks itself
             check += f" --connect {scheme}/127.0.0.1:{ROUTER_PORT}"
+        else:  # a router restarting must not fail every other pod's probes meanwhile
+            check += " --router-down-ok"
         if keys is not None:  # a TLS handshake on a loaded node can outlast health's default 2 s
             check += " --timeout 4"
         return {"exec": {"command": ["sh", "-c", check]}, "initialDelaySeconds": 20, "periodSeconds": 10,
@@ -176,16 +184,20 @@ def manifests(sc: Scenario, scenario_text: str, swarm: str, tag: str = "latest",
         container["volumeMounts"].append({**own, "readOnly": True})
 
     def command(role: str, extra: list[str] | None = None) -> list[str]:
-        return [role, IN_CONTAINER_SCENARIO, "--mode", "client", "--connect", connect, "--no-multicast",
+        every = [a for e in endpoints for a in ("--connect", e)]  # several: the next when one is lost
+        return [role, IN_CONTAINER_SCENARIO, "--mode", "client", *every, "--no-multicast",
                 "--swarm", swarm, "--clock", clock, "--out", run, *(extra or [])]
 
-    def deployment(role: str, args: list[str]) -> dict:
-        selector = {**labels, "app.kubernetes.io/component": role}
-        return {"apiVersion": "apps/v1", "kind": "Deployment", "metadata": meta(role, role),
-                "spec": {"replicas": 1, "selector": {"matchLabels": selector}, "template": pod(role, args)}}
+    def deployment(role: str, args: list[str], name: str | None = None, ident: str = "0",
+                   extra_labels: dict | None = None) -> dict:
+        selector = {**labels, "app.kubernetes.io/component": role, **(extra_labels or {})}
+        template = pod(role, args, ident)
+        template["metadata"]["labels"].update(extra_labels or {})
+        return {"apiVersion": "apps/v1", "kind": "Deployment", "metadata": meta(name or role, role),
+                "spec": {"replicas": 1, "selector": {"matchLabels": selector}, "template": template}}
 
-    def service(name: str, role: str, headless: bool = False) -> dict:
-        spec: dict = {"selector": {**labels, "app.kubernetes.io/component": role},
+    def service(name: str, role: str, headless: bool = False, extra_labels: dict | None = None) -> dict:
+        spec: dict = {"selector": {**labels, "app.kubernetes.io/component": role, **(extra_labels or {})},
                       "ports": [{"name": "zenoh", "port": ROUTER_PORT, "targetPort": ROUTER_PORT, "protocol": "TCP"}]}
         if headless:
             spec["clusterIP"] = "None"
@@ -199,13 +211,23 @@ def manifests(sc: Scenario, scenario_text: str, swarm: str, tag: str = "latest",
     world_args = command("world", ["--tick-timeout", "5", "--wait-timeout", str(WAIT_TIMEOUT_S)])
     for name in wait_for if wait_for is not None else ["logger/0"]:
         world_args += ["--wait-for", name]
-    router_args = ["router", "--listen", f"{scheme}/0.0.0.0:{ROUTER_PORT}", "--swarm", swarm,
-                   "--scenario", IN_CONTAINER_SCENARIO]
+    router_objects = []
+    for i, name in enumerate(router_names):
+        others = [a for j, e in enumerate(endpoints) if j != i for a in ("--connect", e)]  # meshed
+        args = ["router", "--listen", f"{scheme}/0.0.0.0:{ROUTER_PORT}", "--id", str(i), *others, "--swarm", swarm,
+                "--scenario", IN_CONTAINER_SCENARIO]
+        own = {"fxswarm/router": str(i)}  # each router's Service reaches its own pod only
+        workload = deployment("router", args, name, str(i), own)
+        if routers > 1:  # the routers on different nodes where there are several
+            workload["spec"]["template"]["spec"]["topologySpreadConstraints"] = [{
+                "maxSkew": 1, "topologyKey": "kubernetes.io/hostname", "whenUnsatisfiable": "DoNotSchedule",
+                "labelSelector": {"matchLabels": {**labels, "app.kubernetes.io/component": "router"}}}]
+        router_objects += [workload, service(name, "router", extra_labels=own)]
     files = {
         "scenario.yaml": [{"apiVersion": "v1", "kind": "ConfigMap", "metadata": meta("scenario", "scenario"),
                            "data": {"scenario.toml": scenario_text,
                                     **({f"{law[0]}.py": law[1]} if law is not None else {})}}],
-        "router.yaml": [deployment("router", router_args), service("router", "router")],
+        "router.yaml": router_objects,
         "agents.yaml": [
             service("agent", "agent", headless=True),
             {"apiVersion": "apps/v1", "kind": "StatefulSet", "metadata": meta("agent", "agent"),
@@ -250,7 +272,7 @@ def main(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     law = law_module(sc)
     files = manifests(sc, Path(args.config).read_text(), swarm, args.tag, args.clock, args.wait_for, plan, keys,
-                      (law[0], law[1].read_text()) if law is not None else None)
+                      (law[0], law[1].read_text()) if law is not None else None, args.routers)
     how = "kubectl apply -k DIR" if args.kustomize else "kubectl apply -f DIR"
     head = header(sc, f"k8s {args.config}", f"Apply: {how}; images fxswarm-<role> from docker/build-images.sh, "
                   "pushed to a registry or loaded into the cluster's nodes")

@@ -9,8 +9,10 @@ waits on their liveliness tokens (no fixed sleeps), starts the world last
 (so nobody misses tick 0), shows a progress line from ``world/state``, and
 at the end merges every process's counters into ``summary.json``.
 
-Deaths: the world, leader or (routed) router dying unplanned ends the run with a
-non-zero exit that names the process and shows its last stderr lines; an
+Deaths: the world or leader dying unplanned ends the run with a non-zero exit that names the
+process and shows its last stderr lines; a router that dies is started again on its endpoint
+(with its keys and rules), every process reconnects, and lock-step asks again for what the
+outage swallowed (``--routers N`` runs N meshed routers, each process failing over among them); an
 agent dying is reported and the swarm runs on (``--fail-fast`` ends it);
 Ctrl-C (or SIGTERM) stops everything within 5 s and says what it stopped.
 
@@ -24,6 +26,7 @@ import argparse
 import importlib.util
 import json
 import os
+import shlex
 import signal
 import socket
 import subprocess
@@ -61,7 +64,13 @@ MESH_MAX_ROBOTS = 8
 # A ZENOH_RUNTIME already in the environment wins.
 ZENOH_RUNTIME = "(app: (worker_threads: 1), rx: (worker_threads: 1), tx: (worker_threads: 1))"
 STOP_BUDGET_S = 4.5  # Ctrl-C to nothing left: the issue promises 5 s
-LOGGER_GRACE_S = 15.0  # at the end of a run, time for the logger to close its recording by itself
+LOGGER_GRACE_S = 15.0
+#: Supervision: a router that dies is started again, at most this many times in a run (one that
+#: keeps dying, e.g. its port taken, ends a routed run as before).
+MAX_ROUTER_RESTARTS = 10
+#: The official router's binary (a command line) to start instead of `fxswarm router`, as
+#: ``ZENOHD -c FILE`` (`make test-zenohd` sets it).
+ZENOHD_ENV = "FXSWARM_ZENOHD"  # at the end of a run, time for the logger to close its recording by itself
 
 
 def free_port() -> int:
@@ -85,16 +94,18 @@ def auto_topology(scenario: Scenario, plan: FaultPlan | None = None) -> str:
     return "mesh"
 
 
-def topology_options(topology: str, router: str, lease_ms: int | None = None, secure: bool = False) -> ZenohOptions:
+def topology_options(topology: str, router: str | tuple[str, ...], lease_ms: int | None = None,
+                     secure: bool = False) -> ZenohOptions:
     """How a process on this machine joins a ``mesh`` or ``routed`` swarm whose router listens at
-    ``router``: a mesh peer meets the others there (gossip) and then talks to them over direct
+    ``router`` (or routers: the first that answers, the others if it is lost): a mesh peer meets the others there (gossip) and then talks to them over direct
     links, each on a port of its own, so the router carries no data once the links are up; a
     routed client sends everything through it. Multicast scouting off either way; ``secure``: the
     peers' own links are TLS too."""
+    routers = (router,) if isinstance(router, str) else tuple(router)
     if topology == "mesh":
-        return ZenohOptions("peer", (router,), (f"{'tls' if secure else 'tcp'}/127.0.0.1:0",), False, lease_ms)
+        return ZenohOptions("peer", routers, (f"{'tls' if secure else 'tcp'}/127.0.0.1:0",), False, lease_ms)
     if topology == "routed":
-        return ZenohOptions("client", (router,), (), False, lease_ms)
+        return ZenohOptions("client", routers, (), False, lease_ms)
     raise ValueError(f"topology: expected mesh or routed, got {topology!r}")
 
 
@@ -172,11 +183,17 @@ class Child:
 class Death:
     child: Child
     code: int
+    restarted: bool = False  # a router the launcher has started again (supervision)
+    pid: int | None = None  # the one that died (a restarted child has a new one)
+
+    def __post_init__(self) -> None:
+        if self.pid is None:
+            self.pid = self.child.pid
 
     def describe(self) -> str:
         how = f"killed by {signal.Signals(-self.code).name}" if self.code < 0 else f"exit code {self.code}"
         tail = self.child.tail()
-        text = f"{self.child.name} (pid {self.child.pid}) died: {how}"
+        text = f"{self.child.name} (pid {self.pid}) died: {how}"
         if tail:
             text += "; its last output:\n" + "\n".join("    " + line for line in tail)
         return text
@@ -212,6 +229,9 @@ class Swarm:
     plan: FaultPlan | None = None  # the run's resolved fault plan, handed to every role process
     secure: str | None = None  # keys folder (`fxswarm keys`): mutual TLS + access rules (docs/security.md)
     audit: bool = False  # secure: the router logs each refusal by the rules (costs: docs/security.md)
+    routers: int = 1  # routers meshed with each other; each process lists them all (its own first in turn)
+    # The official Zenoh router instead of `fxswarm router` (docs/routers.md): its path, default $FXSWARM_ZENOHD.
+    zenohd: str | None = field(default_factory=lambda: os.environ.get(ZENOHD_ENV) or None)
     python: str = sys.executable
     scenario: Scenario | None = None
     children: dict[str, Child] = field(default_factory=dict)
@@ -231,7 +251,11 @@ class Swarm:
         zen = self.scenario.zenoh
         self.swarm = self.swarm or zen.get("swarm") or f"{self.scenario.name}-{os.getpid()}"
         self.port = self.port or free_port()
-        self.endpoint = f"{'tls' if self.secure else 'tcp'}/127.0.0.1:{self.port}"
+        scheme = "tls" if self.secure else "tcp"
+        self.endpoints = tuple(f"{scheme}/127.0.0.1:{p}"
+                               for p in [self.port, *(free_port() for _ in range(self.routers - 1))])
+        self.endpoint = self.endpoints[0]
+        self.router_restarts = 0
         self.topology = self.topology or zen.get("topology") or "auto"
         if self.topology not in RUN_TOPOLOGIES:
             raise ValueError(f"topology: expected one of {', '.join(RUN_TOPOLOGIES)}, got {self.topology!r}")
@@ -239,7 +263,7 @@ class Swarm:
             self.topology = secure_topology(self.topology, self.audit)
         if self.topology == "auto":
             self.topology = auto_topology(self.scenario, self.plan)
-        self.options = topology_options(self.topology, self.endpoint, self.lease_ms, secure=bool(self.secure))
+        self.options = topology_options(self.topology, self.endpoints, self.lease_ms, secure=bool(self.secure))
         if self.secure:
             mesh = self.topology == "mesh"
             self.options = replace(self.options, tls=secure_files_or_exit(self.secure, self.scenario, mesh),
@@ -247,11 +271,15 @@ class Swarm:
 
     # --- commands --------------------------------------------------------------------------
 
-    def _zenoh_args(self) -> list[str]:
-        return ["--swarm", self.swarm, *self.options.as_args()]
+    def _zenoh_args(self, turn: int = 0) -> list[str]:
+        """``turn``: with several routers, the process's place in turn: it lists them from router
+        ``turn mod n`` on, so the processes spread over the routers and fail over to the next."""
+        k = turn % len(self.endpoints)
+        options = replace(self.options, connect=self.endpoints[k:] + self.endpoints[:k])
+        return ["--swarm", self.swarm, *options.as_args()]
 
-    def _role_argv(self, role: str, extra: list[str]) -> list[str]:
-        argv = [self.python, "-m", "fxswarm.cli", role, self.config, *self._zenoh_args(), "--out", str(self.out)]
+    def _role_argv(self, role: str, extra: list[str], turn: int = 0) -> list[str]:
+        argv = [self.python, "-m", "fxswarm.cli", role, self.config, *self._zenoh_args(turn), "--out", str(self.out)]
         if role in ("world", "leader", "agent"):
             argv += ["--clock", self.clock, "--speed", repr(self.speed), "--fault-plan", str(self.plan_path)]
         return argv + extra
@@ -266,18 +294,43 @@ class Swarm:
         access = write_access(self.out / "access.json", self.scenario, self.swarm)
         return ["--secure", str(self.secure), "--access", str(access), *(["--audit"] if self.audit else [])]
 
+    def _zenohd_config(self, name: str, endpoint: str) -> Path:
+        """The official router's configuration for router ``name`` (docs/routers.md): the same
+        endpoint, mesh, keys and rules as `fxswarm router` would take."""
+        conf: dict = {"mode": "router", "listen": {"endpoints": [endpoint]},
+                      "connect": {"endpoints": [e for e in self.endpoints if e != endpoint],
+                                  "timeout_ms": -1, "exit_on_failure": False,
+                                  "retry": {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2}},
+                      "scouting": {"multicast": {"enabled": False}}}
+        if self.secure:
+            from fxswarm.runtime.tls import checked
+
+            conf["transport"] = {"link": {"tls": checked(self.secure, "router").zenoh_tls(listen=True)}}
+            conf["access_control"] = json.loads((self.out / "access.json").read_text())
+        path = self.out / f"{name}.zenohd.json5"
+        path.write_text(json.dumps(conf, indent=2) + "\n")  # JSON is JSON5
+        return path
+
     def planned(self) -> list[Child]:
         """Every process of the run, in start order (the world last)."""
         logs = self.out / "logs"
-        out = [Child("router", "router", 0, [self.python, "-m", "fxswarm.cli", "router", "--listen", self.endpoint,
-                                             "--swarm", self.swarm, "--scenario", self.config,  # for `fxswarm attach`
-                                             *self._router_secure_args()], logs / "router.log")]
+        secure = self._router_secure_args()
+        out = []
+        for i, endpoint in enumerate(self.endpoints):
+            name = "router" if i == 0 else f"router-{i}"
+            others = [a for e in self.endpoints if e != endpoint for a in ("--connect", e)]  # meshed
+            argv = [self.python, "-m", "fxswarm.cli", "router", "--listen", endpoint, "--id", str(i), *others,
+                    "--swarm", self.swarm, "--scenario", self.config,  # for `fxswarm attach`
+                    *secure]
+            if self.zenohd:
+                argv = [*shlex.split(self.zenohd), "-c", str(self._zenohd_config(name, endpoint))]
+            out.append(Child(name, "router", i, argv, logs / f"{name}.log"))
         if self.logger and logger_available():
             out.append(Child("logger", "logger", 0, self._role_argv("logger", list(self.logger_args)),
                              logs / "logger.log"))
         out.append(Child("leader", "leader", 0, self._role_argv("leader", []), logs / "leader.log"))
         for r in self.scenario.robots:
-            out.append(Child(f"agent-{r.id}", "agent", r.id, self._role_argv("agent", ["--id", str(r.id)]),
+            out.append(Child(f"agent-{r.id}", "agent", r.id, self._role_argv("agent", ["--id", str(r.id)], r.id),
                              logs / f"agent-{r.id}.log"))
         world_extra = ["--tick-timeout", repr(self.tick_timeout), *self.world_args]
         out.append(Child("world", "world", 0, self._role_argv("world", world_extra), logs / "world.log"))
@@ -319,6 +372,7 @@ class Swarm:
             self._spawn(child)
         self.bus = self._open_bus(t0 + timeout)
         self.bus.watch_alive("**", self._on_alive)
+        self.bus.watch_router_links(self._on_alive)  # zenohd declares no token: a link to it tells
         self.bus.subscribe(topics.WORLD_STATE, self._on_state, raw=True)
         required = [c for c in self.children.values() if c.role != "logger"]
         self._wait_alive(required, t0 + timeout)
@@ -339,12 +393,13 @@ class Swarm:
         """The launcher's own session. A client (routed) waits for the router it has just started,
         which takes a moment to come up or may die (its port taken): then say why it died rather
         than wait out the connect timeout."""
-        router = self.children["router"]
+        routers = [c for c in self.children.values() if c.role == "router"]
 
         def router_still_up() -> None:  # between two attempts to reach it
-            code = router.popen.poll()
-            if code is not None:
-                raise StartError(Death(router, code).describe())
+            for router in routers:
+                code = router.popen.poll()
+                if code is not None:
+                    raise StartError(Death(router, code).describe())
 
         wait_ms = max(1000, int((deadline - time.monotonic()) * 1000))
         try:
@@ -377,9 +432,14 @@ class Swarm:
                 self.bus.counters.invalid += 1
         return self._state
 
+    def _up(self, child: Child) -> bool:
+        if child.role == "router" and self.zenohd:  # no token of its own: the launcher linked to a router
+            return any(name.startswith("router/link-") for name in self.alive)
+        return child.token in self.alive
+
     def _wait_alive(self, children: list[Child], deadline: float) -> None:
         while True:
-            missing = [c for c in children if c.token not in self.alive]
+            missing = [c for c in children if not self._up(c)]
             if not missing:
                 return
             for c in missing:
@@ -393,7 +453,8 @@ class Swarm:
     # --- while running -------------------------------------------------------------------------
 
     def poll(self, timeout: float = 0.1) -> list[Death]:
-        """Pump the launcher's session for up to ``timeout`` s; return deaths not yet reported."""
+        """Pump the launcher's session for up to ``timeout`` s; return deaths not yet reported.
+        A router that died unplanned is started again here (supervision: ``restarted``)."""
         if self.bus is not None:
             self.bus.poll(timeout)
         deaths = []
@@ -407,7 +468,11 @@ class Swarm:
             code = child.popen.poll()
             if code is not None:
                 child.reported = True
-                if not (code == 0 and (run_over or self._left_at_run_over(child))):
+                world_on = world is None or world.popen is None or world.popen.poll() is None
+                if child.role == "router" and world_on and self.router_restarts < MAX_ROUTER_RESTARTS:
+                    deaths.append(Death(child, code, restarted=True))
+                    self.restart_router(child)
+                elif not (code == 0 and (run_over or self._left_at_run_over(child))):
                     deaths.append(Death(child, code))
         return deaths
 
@@ -466,6 +531,12 @@ class Swarm:
         self._spawn(child)
         self.wait_alive(name, timeout)
 
+    def restart_router(self, child: Child) -> None:
+        """Supervision: start a router that died again, on its endpoint with its keys and rules
+        (the same command); every process reconnects by itself (Zenoh retries its routers)."""
+        self.router_restarts += 1
+        self._spawn(child)
+
     # --- stop -------------------------------------------------------------------------------
 
     def stop_child(self, child: Child, budget: float = 3.0) -> str:
@@ -500,8 +571,8 @@ class Swarm:
                 break
             self.poll(0.05)
         how: dict[str, str] = {}
-        router = self.children.get("router")
-        others = [c for c in self.children.values() if c is not router]
+        routers = [c for c in self.children.values() if c.role == "router"]
+        others = [c for c in self.children.values() if c.role != "router"]
         for c in others:
             if c.running():
                 c.stopped_by = "SIGTERM"
@@ -522,8 +593,9 @@ class Swarm:
         if self.bus is not None:
             self.bus.close()
             self.bus = None
-        if router is not None and router.popen is not None:
-            how["router"] = self.stop_child(router, budget=0.8)
+        for router in routers:
+            if router.popen is not None:
+                how[router.name] = self.stop_child(router, budget=0.8)
         return how
 
     # --- results -----------------------------------------------------------------------------
@@ -575,6 +647,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         f"message through the router; auto: mesh up to {MESH_MAX_ROBOTS} robots unless a process "
                         "is to be frozen (default: "
                         "the scenario's [zenoh] topology, else auto)")
+    p.add_argument("--routers", type=positive_int, default=1, metavar="N",
+                   help="start N routers meshed with each other; every process lists them all and fails over "
+                        "to another when its router is lost (default 1; a router that dies is started again)")
     p.add_argument("--lease-ms", type=positive_int, default=None, help="zenoh lease (how fast a frozen process is seen gone)")
     p.add_argument("--max-lag", type=non_negative_int, default=None, metavar="TICKS",
                    help="real time: the world holds its clock while a robot is more than TICKS ticks behind "
@@ -662,7 +737,7 @@ def main(args: argparse.Namespace) -> int:
         swarm = Swarm(args.config, out, clock=args.clock, speed=args.speed or 1.0, swarm=args.swarm, port=args.port,
                       logger=not args.no_logger, tick_timeout=args.tick_timeout, lease_ms=args.lease_ms,
                       scenario=sc, topology=args.topology, faults=tuple(args.fault or ()), plan=plan,
-                      secure=args.secure, audit=args.audit,
+                      secure=args.secure, audit=args.audit, routers=args.routers,
                       world_args=(("--max-lag", str(args.max_lag)) if args.max_lag is not None else ())
                       + (("--ros2",) if ros2 else ()),
                       logger_args=("--rerun", args.rerun) if args.rerun is not None else (),
@@ -703,6 +778,9 @@ def main(args: argparse.Namespace) -> int:
                 elif d.child.role == "logger":
                     logger_death = f"{d.describe()} at t = {swarm.sim_time():.2f} s"
                     warn(f"\nfxswarm run: warning: {d.describe()}; the swarm runs on without it")
+                elif d.restarted:
+                    warn(f"\nfxswarm run: warning: {d.describe()}; started it again (restart "
+                         f"{swarm.router_restarts} of at most {MAX_ROUTER_RESTARTS}): every process reconnects")
                 elif d.child.role == "router" and swarm.topology == "mesh":
                     warn(f"\nfxswarm run: warning: {d.describe()}; the swarm runs on over its direct links "
                         f"(a process that starts from now on cannot join it)")
@@ -738,6 +816,8 @@ def main(args: argparse.Namespace) -> int:
         if stopped and (code or not args.quiet):
             warn("fxswarm run: stopped " + ", ".join(f"{k} ({v})" for k, v in stopped.items()))
     summary = swarm.merge_summary({"launcher": {"swarm": swarm.swarm, "router": swarm.endpoint,
+                                                "routers": list(swarm.endpoints),
+                                                "router_restarts": swarm.router_restarts,
                                                 "topology": swarm.topology,
                                                 "secure": bool(args.secure),
                                                 "agent_deaths": agent_deaths, "logger_death": logger_death,

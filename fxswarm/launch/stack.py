@@ -9,7 +9,10 @@ Services (docs/deploy.md says why):
 
 * ``router``: the Zenoh router every process is a client of, on the overlay
   network, its port published on the node it runs on (``mode: host``: the
-  ingress mesh does not go with ``dnsrr``) for ``fxswarm attach``;
+  ingress mesh does not go with ``dnsrr``) for ``fxswarm attach``; restarted
+  whatever its exit. ``--routers 2``: also ``router-1`` (published port
+  ``FXSWARM_ROUTER_PORT_1``, 7448), meshed with it, kept off the node labelled
+  ``fxswarm.router=0`` (and ``router`` off ``=1``); every process lists both;
 * ``agent``: ONE service scaled to the scenario's robot count; each task's
   slot (``{{.Task.Slot}}``, 1..N) is its robot id, passed as ``FXSWARM_ID``
   (Swarm templates the environment, not the command; docker/entrypoint.sh
@@ -76,12 +79,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--wait-for", action="append", default=None, metavar="ROLE/ID",
                    help="what the world waits for besides the leader and agents (repeatable; default "
                         "logger/0); add observer/0 to start the clock only once `fxswarm attach` listens")
+    p.add_argument("--routers", type=int, choices=(1, 2, 3), default=1,
+                   help="router services, meshed with each other, each on a node of its own once nodes are "
+                        "labelled fxswarm.router=<n>; every process lists them all and fails over (default 1)")
     add_fault_and_secure_arguments(p, "service", "the keys reach the services as Swarm secrets")
 
 
-def role_command(role: str, swarm: str, run: str, extra: list[str] | None = None, scheme: str = "tcp") -> list[str]:
-    """A role's command line in a container, as a client of the ``router`` service."""
-    return [role, IN_CONTAINER_SCENARIO, "--mode", "client", "--connect", f"{scheme}/router:{ROUTER_PORT}",
+def router_name(i: int) -> str:
+    """Router ``i``'s service (and host) name: ``router``, ``router-1``, ..."""
+    return "router" if i == 0 else f"router-{i}"
+
+
+def role_command(role: str, swarm: str, run: str, extra: list[str] | None = None, scheme: str = "tcp",
+                 routers: int = 1) -> list[str]:
+    """A role's command line in a container, as a client of the ``router`` service(s): with several,
+    it lists them all (the first that answers; the next when it is lost)."""
+    connect = [a for i in range(routers) for a in ("--connect", f"{scheme}/{router_name(i)}:{ROUTER_PORT}")]
+    return [role, IN_CONTAINER_SCENARIO, "--mode", "client", *connect,
             "--no-multicast", "--swarm", swarm, "--clock", var("FXSWARM_CLOCK", "lockstep"),
             "--speed", var("FXSWARM_SPEED", "1"), "--out", f"{IN_CONTAINER_RUNS}/{run}", *(extra or [])]
 
@@ -94,7 +108,7 @@ def world_extra(wait_for: list[str]) -> list[str]:
 
 
 def stack_document(sc: Scenario, swarm: str, wait_for: list[str], plan: FaultPlan | None = None,
-                   keys: str | None = None, law: str | None = None) -> dict:
+                   keys: str | None = None, law: str | None = None, routers: int = 1) -> dict:
     """The stack file for ``sc`` as a dict (YAML-ready).
 
     ``plan``: the run's resolved fault plan (default: the scenario's ``[faults]``), handed to
@@ -117,8 +131,10 @@ def stack_document(sc: Scenario, swarm: str, wait_for: list[str], plan: FaultPla
 
     def service(role: str, command: list[str], condition: str, ident: str = "0", replicas: int = 1,
                 extra_env: dict | None = None) -> dict:
-        check = (["CMD-SHELL", f'fxswarm health {role} "$$FXSWARM_ID" --quiet'] if role == "agent"
-                 else ["CMD", "fxswarm", "health", role, ident, "--quiet"])
+        # A router restarting (Swarm restarts it) must not fail every other task's check meanwhile.
+        check = (["CMD-SHELL", f'fxswarm health {role} "$$FXSWARM_ID" --quiet --router-down-ok'] if role == "agent"
+                 else ["CMD", "fxswarm", "health", role, ident, "--quiet",
+                       *(["--router-down-ok"] if role != "router" else [])])
         if role == "router":
             # Swarm puts a task in its service's DNS only once it is healthy: the router asks itself.
             check += ["--connect", f"{scheme}/127.0.0.1:{ROUTER_PORT}"]
@@ -145,19 +161,30 @@ def stack_document(sc: Scenario, swarm: str, wait_for: list[str], plan: FaultPla
         out["volumes"] = [{"type": "volume", "source": "runs", "target": IN_CONTAINER_RUNS}]
         return out
 
-    router = service("router", ["router", "--listen", f"{scheme}/0.0.0.0:{ROUTER_PORT}", "--swarm", swarm,
-                                "--scenario", IN_CONTAINER_SCENARIO], "any")
-    router["ports"] = [{"target": ROUTER_PORT, "published": var("FXSWARM_ROUTER_PORT", str(ROUTER_PORT)),
-                        "protocol": "tcp", "mode": "host"}]
-    services = {
-        "router": router,
+    services = {}
+    for i in range(routers):
+        # Restarted whatever its exit (condition any); meshed with the other routers.
+        others = [a for j in range(routers) if j != i for a in ("--connect", f"{scheme}/{router_name(j)}:{ROUTER_PORT}")]
+        router = service("router", ["router", "--listen", f"{scheme}/0.0.0.0:{ROUTER_PORT}", "--id", str(i), *others,
+                                    "--swarm", swarm, "--scenario", IN_CONTAINER_SCENARIO], "any", ident=str(i))
+        port = var("FXSWARM_ROUTER_PORT", str(ROUTER_PORT)) if i == 0 else \
+            var(f"FXSWARM_ROUTER_PORT_{i}", str(ROUTER_PORT + i))
+        router["ports"] = [{"target": ROUTER_PORT, "published": port, "protocol": "tcp", "mode": "host"}]
+        if routers > 1:
+            # Apart once two nodes are labelled (docker node update --label-add fxswarm.router=N):
+            # router i never goes where another router's label is; unlabelled nodes take any.
+            router["deploy"]["placement"] = {"constraints": [f"node.labels.fxswarm.router != {j}"
+                                                             for j in range(routers) if j != i]}
+        services[router_name(i)] = router
+    services.update({
         "logger": service("logger", role_command("logger", swarm, run, ["--rerun", var("FXSWARM_RERUN", "file")],
-                                                 scheme), "on-failure"),
-        "leader": service("leader", role_command("leader", swarm, run, scheme=scheme), "on-failure"),
-        "agent": service("agent", role_command("agent", swarm, run, scheme=scheme), "on-failure", replicas=sc.n,
-                         extra_env={"FXSWARM_ID": "{{.Task.Slot}}"}),
-        "world": service("world", role_command("world", swarm, run, world_extra(wait_for), scheme), "on-failure"),
-    }
+                                                 scheme, routers), "on-failure"),
+        "leader": service("leader", role_command("leader", swarm, run, scheme=scheme, routers=routers), "on-failure"),
+        "agent": service("agent", role_command("agent", swarm, run, scheme=scheme, routers=routers), "on-failure",
+                         replicas=sc.n, extra_env={"FXSWARM_ID": "{{.Task.Slot}}"}),
+        "world": service("world", role_command("world", swarm, run, world_extra(wait_for), scheme, routers),
+                         "on-failure"),
+    })
     doc = {
         "version": "3.8",
         "services": services,
@@ -196,7 +223,8 @@ def secure_services(services: dict, sc: Scenario, keys: str) -> dict:
                                         "FXSWARM_RUN_AS": f"{USER_ID}:{USER_ID}"})
             spec["volumes"].append({"type": "tmpfs", "target": AGENT_KEYS_DIR, "tmpfs": {"size": 1 << 20}})
         else:
-            own = [f"{role}.pem", f"{role}.key"] + (["access.json"] if role == "router" else [])
+            name = "router" if role.startswith("router") else role  # every router holds the router's pair
+            own = [f"{name}.pem", f"{name}.key"] + (["access.json"] if name == "router" else [])
             uid = USER_ID
             spec["environment"]["FXSWARM_SECURE"] = SECRETS_DIR  # the command and the health check
         for name in own:
@@ -264,7 +292,8 @@ def main(args: argparse.Namespace) -> int:
     if law is not None:
         shutil.copyfile(law[1], out / f"{law[0]}.py")
     doc = stack_document(sc, swarm, args.wait_for if args.wait_for is not None else ["logger/0"], plan,
-                         relative_path(keys, out) if keys is not None else None, law[0] if law is not None else None)
+                         relative_path(keys, out) if keys is not None else None, law[0] if law is not None else None,
+                         args.routers)
     text = dump_yaml(doc, header(sc, f"stack {args.config}",
                                  f"Deploy: docker stack deploy -c stack.yml NAME   (images: docker/build-images.sh on "
                                  f"every node; {', '.join(sorted({v[0] for v in IMAGES.values()}))})"))

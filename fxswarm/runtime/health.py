@@ -39,6 +39,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--timeout", type=positive, default=2.0, metavar="S",
                    help="how long to wait for the router and for the answer (default 2 s)")
     p.add_argument("--quiet", action="store_true", help="no line on stdout")
+    p.add_argument("--router-down-ok", action="store_true",
+                   help="exit 0 when the router cannot be reached (the process cannot be judged then): a "
+                        "container's health check must not have a router's restart kill every process")
     p.add_argument("--secure", default=os.environ.get("FXSWARM_SECURE") or None, metavar="KEYS",
                    help="keys folder (secure mode; default $FXSWARM_SECURE): ask over mutual TLS")
     p.add_argument("--as", dest="identity", default=None, metavar="NAME",
@@ -96,8 +99,9 @@ def main(args: argparse.Namespace) -> int:
     try:
         alive = is_alive(args.swarm, args.role, ident, args.connect, args.timeout, tls)
     except OSError as exc:
-        print(f"fxswarm health: {name} of swarm {args.swarm!r}: {exc}", file=sys.stderr)
-        return 1
+        print(f"fxswarm health: {name} of swarm {args.swarm!r}: {exc}"
+              f"{' (not judged: --router-down-ok)' if args.router_down_ok else ''}", file=sys.stderr)
+        return 0 if args.router_down_ok else 1
     if not args.quiet:
         print(f"{name} of swarm {args.swarm!r}: {'alive' if alive else 'not alive'}")
     return 0 if alive else 1

@@ -37,6 +37,7 @@ from fxswarm.runtime.connectivity import Connectivity
 from fxswarm.runtime.numbers import non_negative, positive
 from fxswarm.runtime.output import prepare_run_folder
 from fxswarm.runtime.config import process_plan_or_exit
+from fxswarm.runtime.liveness import Liveness
 from fxswarm.runtime.tls import identity
 from fxswarm.runtime.zenoh_bus import (ConnectError, ZenohBus, add_zenoh_arguments, log_zenoh_warnings,
                                        options_from_args, wait_until)
@@ -99,8 +100,9 @@ class RoleProcess:
         self.lockstep = args.clock == "lockstep"
         # Real time: a message older than --stale-after simulation s is counted stale.
         self.clock = SimClock(args.speed, args.stale_after if args.stale_after is not None else 5 * scenario.dt)
-        self.alive: set[str] = set()  # tokens seen up (role/id)
-        self.gone: set[str] = set()  # tokens seen up, then down
+        # Tokens up (role/id) and judged gone; and who went with a router (fxswarm.runtime.liveness).
+        self.liveness = Liveness(wall_clock)
+        self.alive, self.gone = self.liveness.alive, self.liveness.gone
         self.run_over = False  # the world's RUN_OVER token was seen: the run is over, this process leaves
         self.world_lost: Deadline | None = None  # running while the world is gone without ending the run
         self.drain_until: Deadline | None = None  # the run is over: waiting for its last messages
@@ -155,14 +157,17 @@ class RoleProcess:
         self.bus.wake()
 
     def check_parent(self) -> None:
+        """Stop if the launcher is gone; judge departures (:meth:`settle`): every loop calls this."""
+        self.settle()
         if self.parent_pid is not None and os.getppid() != self.parent_pid:
             self.stop("launcher gone")
 
     def watch(self, names: list[str]) -> None:
         """Track the liveliness of these ``role/id`` names in :attr:`alive` / :attr:`gone`
         (and, with the world's, whether it has ended the run: :meth:`exit_with_world`)."""
-        for name in names:
+        for name in [*names, "router/*"]:
             self.bus.watch_alive(name, self._on_alive)
+        self.bus.watch_router_links(self._on_alive)  # its own routers, token or not
         if "world/0" in names:
             self.bus.watch_tokens(topics.RUN_OVER, self._on_run_over)
 
@@ -171,12 +176,23 @@ class RoleProcess:
             self.run_over = True
 
     def _on_alive(self, name: str, up: bool) -> None:
-        if up:
-            self.alive.add(name)
-            self.gone.discard(name)
-        elif name in self.alive:
-            self.alive.discard(name)
-            self.gone.add(name)
+        self.liveness.change(name, up)
+
+    def settle(self) -> None:
+        """Judge departures (:class:`~fxswarm.runtime.liveness.Liveness`); say who, lost with a
+        router, never came back."""
+        for name in self.liveness.settle():
+            print(f"fxswarm {self.role} {self.ident}: {name} went with a router {self.liveness.rejoin_s:g} s ago "
+                  f"and is not back: counted gone", file=sys.stderr)
+
+    @property
+    def rejoined(self) -> int:
+        """Router outages over so far (everyone lost with a router is back, or judged gone)."""
+        return self.liveness.rejoined
+
+    def unsure(self) -> set[str]:
+        """Processes that left without being judged gone yet, or went with a router (expected back)."""
+        return self.liveness.unsure()
 
     def exit_with_world(self) -> None:
         """Stop once the world has ended the run (its ``RUN_OVER`` token, :meth:`end_run`).
@@ -239,7 +255,15 @@ class RoleProcess:
         self.core = unwrap(node)
         for pattern in node.subscriptions():
             self.bus.subscribe(pattern, self.deliver, reader=self.reader_for(pattern))
+        if self.lockstep and hasattr(self.core, "said_again"):
+            self.bus.subscribe(topics.RESYNC, self._asked_again)
         self.bus.declare_alive(self.role, self.ident)
+
+    def _asked_again(self, topic: str, msg: Message) -> None:
+        """The world asks again for its tick after a router outage: say again what was said for it.
+        Past the fault filters on purpose: a repeat of what was already sent (or lost on the way)."""
+        if not self.ended:
+            self.publish(self.core.said_again(msg.tick))
 
     def reader_for(self, pattern: str):
         """How this process reads the payloads on ``pattern`` (role-specific; default: all of it)."""

@@ -2,7 +2,8 @@
 
 Clients (``--mode client --connect tcp/HOST:PORT``) route through it, so no
 separate ``zenohd`` binary is needed. It declares the liveliness token
-``fxswarm/<swarm>/alive/router/0`` so a launcher can wait for it, and closes
+``fxswarm/<swarm>/alive/router/<id>`` so a launcher can wait for it, and every process can
+tell a router's outage (its clients' tokens go with its own) from a process's death, and closes
 its session on SIGINT/SIGTERM.
 
 Secure mode (``--secure KEYS``, docs/security.md): it listens on ``tls/``
@@ -33,6 +34,7 @@ from fxswarm.core.bus import SCENARIO, alive_topic, prefix
 from fxswarm.runtime.numbers import swarm_name
 from fxswarm.runtime.process import PARENT_ENV
 from fxswarm.runtime.tls import SECURE_ENV, KeyFileError, TlsFiles, checked, load_access, tls_endpoints
+from fxswarm.runtime.zenoh_bus import RECONNECT
 
 DEFAULT_LISTEN = "tcp/0.0.0.0:7447"
 DEFAULT_SECURE_LISTEN = "tls/0.0.0.0:7447"
@@ -42,7 +44,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
                    help=f"endpoint to listen on (repeatable; default {DEFAULT_LISTEN}, "
                         f"with --secure {DEFAULT_SECURE_LISTEN})")
-    p.add_argument("--swarm", type=swarm_name, default="default", help="swarm whose alive/router/0 token this router declares")
+    p.add_argument("--swarm", type=swarm_name, default="default", help="swarm whose alive/router/ID token this router declares")
+    p.add_argument("--id", type=int, default=0, help="this router's number among the swarm's routers (its token "
+                                                     "alive/router/ID; default 0)")
     p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
                    help="another router to mesh with (repeatable): one router per host, each connected to "
                         "the others, every process a client of its own host's router (docs/deploy.md)")
@@ -73,6 +77,7 @@ def router_config(listen: list[str], multicast: bool, tls: TlsFiles | None = Non
         # attempt and no retry, so a router started before its peer never meshed with it.
         conf.insert_json5("connect/timeout_ms", "-1")
         conf.insert_json5("connect/exit_on_failure", "false")
+        conf.insert_json5("connect/retry", RECONNECT)  # a restarted peer router is met again at once
     conf.insert_json5("scouting/multicast/enabled", "true" if multicast else "false")
     if tls is not None:
         tls.insert_into(conf, listen=True)
@@ -180,7 +185,7 @@ def main(args: argparse.Namespace) -> int:
             text = open(args.scenario, "rb").read()  # read once: an observer gets the file the run started with
             key = f"{prefix(args.swarm)}/{SCENARIO}"
             served = session.declare_queryable(key, lambda query: query.reply(key, text))
-        token = session.liveliness().declare_token(f"{prefix(args.swarm)}/{alive_topic('router', 0)}")
+        token = session.liveliness().declare_token(f"{prefix(args.swarm)}/{alive_topic('router', args.id)}")
         while not stop.wait(0.2):
             if parent and os.getppid() != int(parent):
                 break  # the launcher is gone: do not outlive it

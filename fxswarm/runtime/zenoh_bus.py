@@ -74,6 +74,9 @@ class ZenohOptions:
         if self.connect:
             conf.insert_json5("connect/endpoints", _json_list(self.connect))
             conf.insert_json5("connect/timeout_ms", str(self.connect_timeout_ms))
+            # A lost router is retried (Zenoh reconnects by itself, also to the next router listed)
+            # every 0.1 s at first, at most every 1 s: a restarted router is rejoined at once.
+            conf.insert_json5("connect/retry", RECONNECT)
         if self.listen:
             conf.insert_json5("listen/endpoints", _json_list(self.listen))
         conf.insert_json5("scouting/multicast/enabled", "true" if self.multicast else "false")
@@ -100,6 +103,9 @@ class ZenohOptions:
         if self.access is not None:
             out += ["--access", str(self.access)]
         return out
+
+
+RECONNECT = "{period_init_ms: 100, period_max_ms: 1000, period_increase_factor: 2}"
 
 
 def _json_list(items) -> str:
@@ -159,7 +165,8 @@ def add_zenoh_arguments(p: argparse.ArgumentParser, default_swarm: str = "defaul
                         f"(default: the scenario's [zenoh] swarm, else {default_swarm!r})")
     g.add_argument("--mode", choices=ZENOH_MODES, default=None, help="zenoh session mode (default: peer)")
     g.add_argument("--connect", action="append", default=None, metavar="ENDPOINT",
-                   help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
+                   help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable: a client uses the first "
+                        "router that answers and fails over to the others when it is lost)")
     g.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
                    help="endpoint to listen on (repeatable)")
     g.add_argument("--multicast", dest="multicast", action="store_true", default=None,
@@ -192,7 +199,8 @@ def options_from_args(args: argparse.Namespace, table: dict | None = None,
     table = table or {}
     swarm = args.swarm or table.get("swarm") or "default"
     mode = args.mode or table.get("mode") or "peer"
-    connect = tuple(args.connect or table.get("connect") or ())
+    # [zenoh] routers: the swarm's routers, all listed, so a process fails over among them.
+    connect = tuple(args.connect or table.get("connect") or table.get("routers") or ())
     listen = tuple(args.listen or table.get("listen") or ())
     multicast = args.multicast if args.multicast is not None else table.get("multicast", mode == "peer")
     lease = args.lease_ms if args.lease_ms is not None else table.get("lease_ms")
@@ -268,7 +276,7 @@ def _sender_rule(topic: str) -> tuple[type | tuple[type, ...], str, int | None, 
         return kind, "agent", robot, True
     if topic == topics.LEADER_STATE:
         return LeaderState, "leader", None, False
-    if topic == topics.CLOCK:
+    if topic in (topics.CLOCK, topics.RESYNC):
         return Clock, "world", None, False
     if topic == topics.WORLD_STATE:
         return WorldState, "world", None, False
@@ -397,6 +405,18 @@ class ZenohBus:
 
         self._subscribers.append(self.session.liveliness().declare_subscriber(
             f"{self.root}/{pattern}", self._callback(on_change), history=True))
+
+    def watch_router_links(self, handler: AliveHandler) -> None:
+        """Call ``handler("router/link-<zid>", up)`` from :meth:`poll` when this session's own link
+        to a router opens or closes: a router that declares no token of its own (``zenohd``) is
+        lost as surely as one that does."""
+        put = self._inbox.put
+
+        def on_event(event, handler=handler) -> None:
+            if event.transport.whatami == zenoh.WhatAmI.ROUTER:
+                put((handler, f"router/link-{event.transport.zid}", event.kind == zenoh.SampleKind.PUT, _ALIVE))
+
+        self._subscribers.append(self.session.info.declare_transport_events_listener(on_event, history=True))
 
     def wake(self) -> None:
         """Make a blocked :meth:`poll` return now (safe from a signal handler and from a handler)."""

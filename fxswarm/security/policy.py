@@ -40,6 +40,7 @@ from fxswarm.agents.node import AgentNode
 from fxswarm.core import bus as topics
 from fxswarm.core.scenario import Scenario
 from fxswarm.leader.node import LeaderNode
+from fxswarm.runtime.tls import ALL_MESSAGES
 from fxswarm.world.node import WorldNode
 
 #: Processes every scenario has, besides one ``agent-<i>`` per robot.
@@ -59,7 +60,7 @@ def rights(scenario: Scenario) -> dict[str, dict[str, list[str]]]:
         "router": {"put": [], "hear": [], "tokens": []},
         "world": {"put": ["world/**"], "hear": WorldNode(scenario, record=False).subscriptions(),
                   "tokens": [topics.alive_topic("world", 0), topics.RUN_OVER], "answer": [topics.WORLD_RECORD]},
-        "leader": {"put": [topics.LEADER_STATE], "hear": LeaderNode(scenario).subscriptions(),
+        "leader": {"put": [topics.LEADER_STATE], "hear": [*LeaderNode(scenario).subscriptions(), topics.RESYNC],
                    "tokens": [topics.alive_topic("leader", 0)]},
         "logger": {"put": [], "hear": ["**"], "tokens": [topics.alive_topic("logger", 0)]},
         # `fxswarm attach` is an observer: it reads the world's states, asks the router for the
@@ -69,7 +70,7 @@ def rights(scenario: Scenario) -> dict[str, dict[str, list[str]]]:
     }
     for r in scenario.robots:
         out[f"agent-{r.id}"] = {"put": [f"agent/{r.id}/**"],
-                                "hear": AgentNode(scenario, r.id).subscriptions(),
+                                "hear": [*AgentNode(scenario, r.id).subscriptions(), topics.RESYNC],
                                 "tokens": [topics.alive_topic("agent", r.id)]}
     return out
 
@@ -94,8 +95,14 @@ def access_control(scenario: Scenario, swarm: str = "*") -> dict:
         {"id": "interest", "messages": ["declare_subscriber"], "flows": ["egress"], "permission": "allow",
          "key_exprs": keys(["**"])},
     ]
+    # Routers meshed with each other (several routers, docs/deploy.md) forward everything their
+    # clients may say: each router checks its own clients, so another router (a `router`
+    # certificate) is trusted with all, as every process trusts it (fxswarm.runtime.tls.session_rules).
+    rules.append({"id": "routers-forward", "messages": list(ALL_MESSAGES), "flows": ["ingress", "egress"],
+                  "permission": "allow", "key_exprs": keys(["**"])})
     subjects = []
-    policies = [{"id": "everyone", "rules": ["liveliness", "liveliness-news", "interest"], "subjects": []}]
+    policies = [{"id": "everyone", "rules": ["liveliness", "liveliness-news", "interest"], "subjects": []},
+                {"id": "routers", "rules": ["routers-forward"], "subjects": ["s-router"]}]
     for name, r in rights(scenario).items():
         subject = f"s-{name}"
         subjects.append({"id": subject, "cert_common_names": [name]})

@@ -23,6 +23,12 @@ def role_images() -> str:
     return IMAGE
 
 
+@pytest.fixture(scope="module")
+def stack_images(swarm_mode, role_images):
+    """A swarm-mode engine and the role images, for a test that deploys a stack."""
+    return role_images
+
+
 @pytest.fixture(scope="session")
 def swarm_mode():
     """A swarm-mode engine for the stack tests; yields whether it was initialised here (then it is

@@ -179,10 +179,12 @@ def test_secure_mode_is_plaintext_free_and_an_audited_run_is_routed(tmp_path, ke
 def test_rights_follow_the_nodes_subscriptions_and_the_graph(sc):
     r = rights(sc)
     # Robot 1: neighbours 2 and 6, pinned; robot 2: neighbours 1 and 3, not pinned.
-    # A neighbour's estimate rides on its command: a robot hears its neighbours' command keys.
-    assert sorted(r["agent-1"]["hear"]) == sorted(["world/sense/1", "agent/2/cmd", "agent/6/cmd", "leader/state"])
-    assert sorted(r["agent-2"]["hear"]) == sorted(["world/sense/2", "agent/1/cmd", "agent/3/cmd"])
-    assert r["leader"]["hear"] == ["world/sense/1"] and r["world"]["put"] == ["world/**"]
+    # A neighbour's estimate rides on its command: a robot hears its neighbours' command keys;
+    # and the world asking again after a router outage (world/again).
+    assert sorted(r["agent-1"]["hear"]) == sorted(["world/sense/1", "agent/2/cmd", "agent/6/cmd", "leader/state",
+                                                   "world/again"])
+    assert sorted(r["agent-2"]["hear"]) == sorted(["world/sense/2", "agent/1/cmd", "agent/3/cmd", "world/again"])
+    assert r["leader"]["hear"] == ["world/sense/1", "world/again"] and r["world"]["put"] == ["world/**"]
     assert r["agent-2"]["put"] == ["agent/2/**"] and r["logger"]["put"] == [] and r["observer"]["put"] == []
     assert sorted(r["world"]["hear"]) == sorted(f"agent/{i}/cmd" for i in range(1, 7))
     acl = access_control(sc, "s")
@@ -215,12 +217,16 @@ def test_the_observer_may_ask_for_the_scenario_and_the_record_and_announce_itsel
     assert by_id["world-asked"] == {"id": "world-asked", "messages": ["query"], "flows": ["egress"],
                                     "permission": "allow", "key_exprs": ["fxswarm/s/world/record"]}
     assert by_id["observer-token"]["key_exprs"] == ["fxswarm/s/alive/observer/*"]
-    # No other rule lets anyone query, serve, nor be sent a reply outside liveliness.
+    # No other rule lets anyone query, serve, nor be sent a reply outside liveliness; but routers
+    # meshed with each other, which forward all (the `router` certificate alone).
     queries = [rule["id"] for rule in acl["rules"] if "query" in rule["messages"]]
     replies = [rule["id"] for rule in acl["rules"] if "reply" in rule["messages"]]
     serves = [rule["id"] for rule in acl["rules"] if "declare_queryable" in rule["messages"]]
-    assert sorted(queries) == ["observer-ask", "world-asked"] and serves == ["world-serve"]
-    assert sorted(replies) == ["liveliness-news", "observer-answer", "world-serve"]
+    assert sorted(queries) == ["observer-ask", "routers-forward", "world-asked"]
+    assert sorted(serves) == ["routers-forward", "world-serve"]
+    assert sorted(replies) == ["liveliness-news", "observer-answer", "routers-forward", "world-serve"]
+    (routers,) = [p for p in acl["policies"] if "routers-forward" in p["rules"]]
+    assert routers["subjects"] == ["s-router"] and {"id": "s-router", "cert_common_names": ["router"]} in acl["subjects"]
     (mine,) = [p for p in acl["policies"] if p["id"] == "p-observer"]
     assert sorted(mine["rules"]) == ["observer-answer", "observer-ask", "observer-hear", "observer-subscribe",
                                      "observer-token"]
