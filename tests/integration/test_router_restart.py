@@ -104,7 +104,6 @@ def test_two_routers_one_killed_for_good_the_run_completes_on_the_other(launch_s
 
 
 def test_realtime_run_goes_on_through_a_router_restart_and_recovers_formation(launch_swarm):
-    # TODO(attach branch): assert summary["router_outages"] has one outage with an end.
     # paper-fast whole, at twice real time (a 40 s flight in 20 s); the router killed at 10 s.
     swarm = launch_swarm(topology="routed", clock="realtime", speed=2.0)
     swarm.wait_for_sim_time(10.0, timeout=120)
@@ -118,6 +117,10 @@ def test_realtime_run_goes_on_through_a_router_restart_and_recovers_formation(la
     # final error within the bound real-time paper-fast meets without an outage.
     assert err[(t > 10.0) & (t < 20.0)].max() > summary["formation_error_final_m"], "no outage seen"
     assert summary["formation_error_final_m"] <= 0.25, summary["formation_error_final_m"]
+    # The world reports the outage: one, after the kill, ended (the router came back), ticks run meanwhile.
+    (outage,) = summary["router_outages"]
+    assert outage["start"] > 9.0 and outage["end"] is not None and outage["end"] > outage["start"], outage
+    assert outage["ticks"] > 0, outage
 
 
 @pytest.mark.parametrize("protected", [True, False], ids=["secure", "rules-off"])
