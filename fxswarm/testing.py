@@ -172,15 +172,17 @@ class SwarmUnderTest:
     def pids(self) -> dict[str, int]:
         return {n: c.pid for n, c in self.swarm.children.items() if c.pid is not None}
 
-    def wait_done(self, timeout: float = 120.0) -> dict:
-        """Wait for the world to finish, stop the rest, merge counters; return ``summary.json``."""
+    def wait_done(self, timeout: float = 120.0, expect_exit: int = 0) -> dict:
+        """Wait for the world to finish, stop the rest, merge counters; return ``summary.json``.
+        ``expect_exit``: the world's exit status the run should end with (1: it flew alone to the
+        end, e.g. every agent gone; anything else raises)."""
         world = self.swarm.children["world"]
         end = time.monotonic() + timeout
         while world.running():
             if time.monotonic() > end:
                 raise TimeoutError(f"the run did not finish within {timeout:g} s (t = {self.sim_time():.2f} s)")
             self.pump(0.1)
-        if world.popen.returncode != 0:
+        if world.popen.returncode != expect_exit:
             from fxswarm.launch.launcher import Death
 
             raise RuntimeError(Death(world, world.popen.returncode).describe())

@@ -23,6 +23,7 @@ restart, stop); :mod:`fxswarm.testing` drives the same class from tests.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib.util
 import json
 import os
@@ -75,9 +76,17 @@ ZENOHD_ENV = "FXSWARM_ZENOHD"  # at the end of a run, time for the logger to clo
 
 def free_port() -> int:
     """A TCP port that was free a moment ago (bind port 0 and let the kernel choose)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_ports(1)[0]
+
+
+def free_ports(n: int) -> list[int]:
+    """``n`` distinct TCP ports that were free a moment ago: all held open together while the
+    kernel chooses, so that it cannot hand the same port out twice."""
+    with contextlib.ExitStack() as stack:
+        socks = [stack.enter_context(socket.socket(socket.AF_INET, socket.SOCK_STREAM)) for _ in range(n)]
+        for s in socks:
+            s.bind(("127.0.0.1", 0))
+        return [s.getsockname()[1] for s in socks]
 
 
 def auto_topology(scenario: Scenario, plan: FaultPlan | None = None) -> str:
@@ -250,10 +259,11 @@ class Swarm:
         self.plan_path = self.out / "fault-plan.json"
         zen = self.scenario.zenoh
         self.swarm = self.swarm or zen.get("swarm") or f"{self.scenario.name}-{os.getpid()}"
-        self.port = self.port or free_port()
+        ports = free_ports(self.routers + 1)  # one spare: the given --port may be among the kernel's choices
+        self.port = self.port or ports.pop()
         scheme = "tls" if self.secure else "tcp"
         self.endpoints = tuple(f"{scheme}/127.0.0.1:{p}"
-                               for p in [self.port, *(free_port() for _ in range(self.routers - 1))])
+                               for p in [self.port, *[p for p in ports if p != self.port][:self.routers - 1]])
         self.endpoint = self.endpoints[0]
         self.router_restarts = 0
         self.topology = self.topology or zen.get("topology") or "auto"

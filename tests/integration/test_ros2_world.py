@@ -126,8 +126,9 @@ def test_when_the_gateway_loses_the_swarm_every_robot_gets_zero_at_once(flying):
     for r in swarm.scenario.robots:
         swarm.kill(f"agent-{r.id}")
     stand_in.wait_for("stopped", timeout=5)
-    summary = swarm.wait_done()  # the world runs on to the end, every robot held at zero
-    assert summary["complete"]
+    # The world runs on to the end, every robot held at zero, and says it flew alone (exit 1).
+    summary = swarm.wait_done(expect_exit=1)
+    assert summary["complete"] and summary["degraded"]["robots"] == [1, 2, 3, 4], summary["degraded"]
     report = stand_in.finish()
     assert report["last_twist"] == [[0.0, 0.0, 0.0]] * 4
 
