@@ -24,6 +24,8 @@ from fxswarm.core.scenario import load
 from fxswarm.runtime.tls import files_for
 from fxswarm.security.keys import write_keys
 
+from support import measured
+
 pytestmark = [pytest.mark.zenoh]
 
 REPO = Path(__file__).resolve().parents[2]
@@ -113,6 +115,8 @@ def test_secure_run_refuses_a_robots_forged_commands_and_keeps_strangers_out(lau
     assert forged_ticks(traj) == 0, "the world applied a forged command"
     # Robot 2's own messages flowed: the world applied its commands all run long.
     v2 = traj["v"][:, 1, :]
+    measured(f"secure-{topology}", load1=os.getloadavg()[0],
+             moving=np.count_nonzero(np.linalg.norm(v2, axis=1)) / len(v2))
     assert np.count_nonzero(np.linalg.norm(v2, axis=1)) > 0.9 * len(v2)
     assert summary["complete"] and summary["processes"]["agent-2"]["sent"] > 100
     # No certificate, or one from another CA: no session at all, so nothing in or out.
