@@ -34,7 +34,7 @@ class Prerequisite:
     marker: str  # the pytest marker of every test that needs it
     require_env: str  # =1: its absence fails those tests
     problem: Callable[[], str | None]  # why it is not here, or None
-    installs: str  # what installs it (for the message)
+    installs: str  # who installs it, for the message where it is missing
 
 
 def _docker_problem() -> str | None:
@@ -66,12 +66,13 @@ def _snapshot_problem() -> str | None:
 
 PREREQUISITES = {p.name: p for p in (
     Prerequisite("docker", "docker", "FXSWARM_REQUIRE_DOCKER", _docker_problem,
-                 "a Docker engine and a compose tool (not installed by .ci/run)"),
+                 "the runner provides it; .ci/run does not install it"),
     Prerequisite("compose", "compose", "FXSWARM_REQUIRE_DOCKER", _compose_problem,
-                 "`docker compose` or `docker-compose` (not installed by .ci/run)"),
-    Prerequisite("browser", "browser", "FXSWARM_REQUIRE_BROWSER", _browser_problem, ".ci/install-browser.sh"),
+                 "the runner provides it; .ci/run does not install it"),
+    Prerequisite("browser", "browser", "FXSWARM_REQUIRE_BROWSER", _browser_problem,
+                 ".ci/install-browser.sh could not install it"),
     Prerequisite("snapshot", "snapshot", "FXSWARM_REQUIRE_SNAPSHOT", _snapshot_problem,
-                 ".ci/install-snapshot-deps.sh"),
+                 ".ci/install-snapshot-deps.sh could not install it"),
 )}
 
 
@@ -136,7 +137,7 @@ def main(argv: list[str]) -> int:
         for name, problem in missing.items():
             p = PREREQUISITES[name]
             skipped = tests[p.marker]
-            print(f"ci: could not install prerequisite {name} ({p.installs}): {problem}\n"
+            print(f"ci: prerequisite {name} missing ({p.installs}): {problem}\n"
                   f"ci: so these {len(skipped)} tests will skip (marker {p.marker!r}):"
                   + "".join(f"\nci:   {t}" for t in skipped), file=sys.stderr)
     else:

@@ -103,7 +103,7 @@ def test_the_ci_check_exports_what_is_here_and_names_what_is_not_and_its_tests(m
     assert prerequisites.main([]) == 0
     out, err = capsys.readouterr()
     assert out.splitlines() == ["export FXSWARM_REQUIRE_DOCKER=1", "export FXSWARM_CI_MISSING=browser"]
-    assert "could not install prerequisite browser (install-browser): no Chromium here" in err
+    assert "ci: prerequisite browser missing (install-browser): no Chromium here" in err
     assert "ci:   tests/integration/test_web.py::test_draws" in err
 
 
