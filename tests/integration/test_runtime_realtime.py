@@ -52,7 +52,11 @@ def test_paper_fast_in_real_time_at_speed_4_meets_the_paper_outcome(launch_swarm
                                          "min_object_distance_m")}
     print(f"speed 4 at load average {os.getloadavg()[0]:.1f}: {detail}")
     measured("speed4", load1=os.getloadavg()[0], **{k: summary[k] for k in BOUNDED})
-    assert summary["min_object_distance_m"] >= 1.8, detail
+    # Bounds from 12 runs on this 2-core machine at load average 9-33 (other test runs beside):
+    # closest approach 1.82-1.97 m (mean 1.90, sd 0.050; lock-step 1.98) against 1.7, mean - 4 sd;
+    # final formation error 0.017-0.158 m (mean 0.068, sd 0.048) and estimate error
+    # 0.031-0.120 m against 0.25 m, which 8 runs of 9 without the compensation missed (above).
+    assert summary["min_object_distance_m"] >= 1.7, detail
     assert summary["formation_error_final_m"] <= 0.25, detail
     assert summary["estimate_error_final_m"] <= 0.25, detail
 
@@ -68,6 +72,9 @@ def test_paper_fast_in_real_time_meets_the_real_time_outcome_on_a_loaded_machine
                                          "formation_error_final_m", "estimate_error_final_m",
                                          "min_object_distance_m")}
     measured("speed1", load1=os.getloadavg()[0], **{k: summary[k] for k in BOUNDED})
+    # Bounds from 12 runs on this 2-core machine at load average 9-26: closest approach
+    # 1.886-1.980 m (mean 1.965, sd 0.026) against 1.8 (mean - 6 sd); final formation error
+    # 0.014-0.096 m, estimate error 0.037-0.057 m, against 0.25 m (speed 4: above).
     assert summary["min_object_distance_m"] >= 1.8, detail
     assert summary["formation_error_final_m"] <= 0.25, detail
     assert summary["estimate_error_final_m"] <= 0.25, detail
@@ -91,7 +98,9 @@ def test_a_robot_whose_answers_are_lost_is_asked_again_and_the_clock_is_not_held
     assert summary["complete"] and summary["ticks"] == 300, detail
     assert summary["faults"]["links"]["agent:2->world/command"]["dropped"] > 100, summary["faults"]["links"]
     assert summary["sensing_sent_again"] > 0 and summary["held_ticks"] > 0, detail  # it lagged, and was asked
-    assert summary["achieved_speed"] > 0.5, detail
+    # 12 runs at load average 8-26: 0.84-0.95; without the asking again 0.18 (above), and load
+    # only lowers that. 0.3 stands between the two.
+    assert summary["achieved_speed"] > 0.3, detail
 
 
 @pytest.mark.zenoh
@@ -109,4 +118,7 @@ def test_a_robot_a_partition_cuts_off_from_the_world_is_not_waited_for(launch_sw
     measured("partition", load1=os.getloadavg()[0], achieved_speed=summary["achieved_speed"])
     assert summary["complete"] and summary["ticks"] == 300, detail
     assert summary["faults"]["links"]["agent:3->world/command"]["dropped"] >= 40, summary["faults"]["links"]
-    assert summary["achieved_speed"] > 0.5, detail
+    # 12 runs at load average 8-26: 0.43-1.00 (0.43 once, at 19, the clock held 1.5 s for robots
+    # starved of CPU; the others 0.92-1.00). Waiting for robot 3 holds each of the cut's 50
+    # ticks up to the 1 s limit: 3 s in 53 s or more, 0.06 (0.07 measured, above). 0.2 between.
+    assert summary["achieved_speed"] > 0.2, detail
