@@ -42,6 +42,7 @@ def main() -> int:
     p.add_argument("--rate", type=float, default=200.0)
     p.add_argument("--seconds", type=float, default=5.0)
     p.add_argument("--wait", type=float, default=60.0, help="how long to wait for the world")
+    p.add_argument("--ready", default=None, help="a file to write once the world is seen, before the attack")
     a = p.parse_args()
     root = f"fxswarm/{a.swarm}"
     conf = zenoh.Config()
@@ -93,6 +94,9 @@ def main() -> int:
         report["world_seen"] = world_up.wait(a.wait)
         if report["world_seen"]:
             cmd_pub = session.declare_publisher(f"{root}/agent/{a.victim}/cmd")
+            if a.ready:
+                with open(a.ready, "w") as f:
+                    f.write("seen the world\n")
             end = time.monotonic() + a.seconds
             seq = 0
             while time.monotonic() < end and not over.is_set():
