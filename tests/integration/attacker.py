@@ -50,7 +50,8 @@ def main() -> int:
     conf.insert_json5("connect/endpoints", json.dumps([a.connect]))
     if a.mode == "peer":
         conf.insert_json5("listen/endpoints", json.dumps([f"{'tls' if a.tls else 'tcp'}/127.0.0.1:0"]))
-    conf.insert_json5("connect/timeout_ms", "3000")
+    # As long as it may wait: a refusal takes the other side's handshake, late on a loaded machine.
+    conf.insert_json5("connect/timeout_ms", str(int(max(3.0, a.wait) * 1000)))
     conf.insert_json5("scouting/multicast/enabled", "false")
     if a.tls:
         conf.insert_json5("transport/link/tls", a.tls)
