@@ -52,8 +52,9 @@ def test_paper_fast_in_real_time_at_speed_4_meets_the_paper_outcome(launch_swarm
                                          "min_object_distance_m")}
     print(f"speed 4 at load average {os.getloadavg()[0]:.1f}: {detail}")
     measured("speed4", load1=os.getloadavg()[0], **{k: summary[k] for k in BOUNDED})
-    # Bounds from 12 runs on this 2-core machine at load average 9-33 (other test runs beside):
-    # closest approach 1.82-1.97 m (mean 1.90, sd 0.050; lock-step 1.98) against 1.7, mean - 4 sd;
+    # Bounds from 13 runs on this 2-core machine at load average 9-33 (other test runs beside):
+    # closest approach 1.77-1.97 m (mean 1.90, sd 0.050 in the first 12; lock-step 1.98) against
+    # 1.7, mean - 4 sd;
     # final formation error 0.017-0.158 m (mean 0.068, sd 0.048) and estimate error
     # 0.031-0.120 m against 0.25 m, which 8 runs of 9 without the compensation missed (above).
     assert summary["min_object_distance_m"] >= 1.7, detail
@@ -94,13 +95,16 @@ def test_a_robot_whose_answers_are_lost_is_asked_again_and_the_clock_is_not_held
     summary = swarm.wait_done(timeout=180)
     detail = {k: summary.get(k) for k in ("held_ticks", "sensing_sent_again", "achieved_speed", "wall_s")}
     print(detail)
-    measured("lost-answers", load1=os.getloadavg()[0], achieved_speed=summary["achieved_speed"])
+    measured("lost-answers", load1=os.getloadavg()[0], achieved_speed=summary["achieved_speed"],
+             held_ticks=summary["held_ticks"])
     assert summary["complete"] and summary["ticks"] == 300, detail
     assert summary["faults"]["links"]["agent:2->world/command"]["dropped"] > 100, summary["faults"]["links"]
     assert summary["sensing_sent_again"] > 0 and summary["held_ticks"] > 0, detail  # it lagged, and was asked
-    # 12 runs at load average 8-26: 0.84-0.95; without the asking again 0.18 (above), and load
-    # only lowers that. 0.3 stands between the two.
-    assert summary["achieved_speed"] > 0.3, detail
+    # Not held for seconds: the clock's holds, in pacer periods (10 ms), 17-41 in 17 runs at load
+    # average 8-50, 291 once at 85; without the asking again each hold ran its 1 s limit, 14 s in
+    # all (about 1400). The speed reached is the machine's more than the code's (0.20-0.95 in those
+    # runs, 0.20 at load 50 with 22 held): printed (MEASURED), not asserted.
+    assert summary["held_ticks"] < 700, detail
 
 
 @pytest.mark.zenoh
@@ -115,10 +119,12 @@ def test_a_robot_a_partition_cuts_off_from_the_world_is_not_waited_for(launch_sw
     summary = swarm.wait_done(timeout=180)
     detail = {k: summary.get(k) for k in ("held_ticks", "sensing_sent_again", "achieved_speed", "wall_s")}
     print(detail)
-    measured("partition", load1=os.getloadavg()[0], achieved_speed=summary["achieved_speed"])
+    measured("partition", load1=os.getloadavg()[0], achieved_speed=summary["achieved_speed"],
+             held_ticks=summary["held_ticks"], wall_s=summary["wall_s"])
     assert summary["complete"] and summary["ticks"] == 300, detail
     assert summary["faults"]["links"]["agent:3->world/command"]["dropped"] >= 40, summary["faults"]["links"]
-    # 12 runs at load average 8-26: 0.43-1.00 (0.43 once, at 19, the clock held 1.5 s for robots
-    # starved of CPU; the others 0.92-1.00). Waiting for robot 3 holds each of the cut's 50
-    # ticks up to the 1 s limit: 3 s in 53 s or more, 0.06 (0.07 measured, above). 0.2 between.
-    assert summary["achieved_speed"] > 0.2, detail
+    # Waiting for robot 3 holds each of the cut's 50 ticks for the 1 s limit, wall time on any
+    # machine: 53 s or more (43 s measured, above). Not waiting: 3.0-7.0 s in 16 runs at load
+    # average 8-56, 9.7 s once more at 55 (speed reached 0.31-1.00, held 0-616 periods: the
+    # machine's figures more than the code's, printed, not asserted). 30 s stands between.
+    assert summary["wall_s"] < 30.0, detail
