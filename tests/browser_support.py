@@ -25,7 +25,6 @@ import pytest
 FLAGS = ("--headless=new", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
          "--window-size=1280,720", "--no-first-run", "--no-default-browser-check", "--disable-extensions",
          "--mute-audio")
-REQUIRE_ENV = "FXSWARM_REQUIRE_BROWSER"
 
 
 def chromium_binary() -> str | None:
@@ -40,15 +39,12 @@ def chromium_binary() -> str | None:
 
 
 def require_chromium() -> str:
-    """The browser, or a skip; a failure where CI could install it (``FXSWARM_REQUIRE_BROWSER=1``,
-    set by .ci/run where apt-get can install ``chromium``): a browser test must not skip there."""
-    binary = chromium_binary()
-    if binary is not None:
-        return binary
-    why = "no Chromium here (Debian: apt-get install chromium; or set FXSWARM_CHROMIUM)"
-    if os.environ.get(REQUIRE_ENV) == "1":
-        pytest.fail(f"{why}; yet {REQUIRE_ENV}=1 (.ci/run sets it where apt-get can install it)")
-    pytest.skip(why)
+    """The browser, or a skip; a failure where ``FXSWARM_REQUIRE_BROWSER=1`` (set by .ci/run
+    where it installed Chromium): a browser test must not skip there."""
+    from prerequisites import require
+
+    require("browser")
+    return chromium_binary()
 
 
 class Browser:

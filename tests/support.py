@@ -203,3 +203,11 @@ def has_colour(path: Path, rgb: int, tol: int = 25, min_pixels: int = 30) -> boo
     img = (mpimg.imread(path)[..., :3] * 255).astype(int)
     target = np.array([(rgb >> 16) & 255, (rgb >> 8) & 255, rgb & 255])
     return int((np.abs(img - target).max(axis=2) <= tol).sum()) >= min_pixels
+
+
+def measured(test: str, **values) -> None:
+    """Print one line of the figures a real-time bound is judged on (``MEASURED test k=v ...``):
+    run with ``-s`` (or ``-rP``), the lines of many runs give the distribution written beside the
+    bound (docs/testing.md "Real-time bounds")."""
+    print("MEASURED", test, " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                                     for k, v in values.items()), flush=True)

@@ -439,6 +439,10 @@ class RealTimeWorld:
         self.last_tick: dict[int, int] = {}  # robot -> the latest tick it has answered
         self.sent: list[topics.Outgoing] = []  # the current tick's messages (sensing asked again while holding)
         self.asked_again = 0  # sensing messages sent again while holding
+        # robot -> when its latest new command arrived, and the longest wall time between two (s):
+        # how stale the world saw its command get (a robot cut off or starved).
+        self.heard_at: dict[int, float] = {}
+        self.longest_silence: dict[int, float] = {}
 
     def subscriptions(self) -> list[str]:
         return self.inner.subscriptions()
@@ -446,12 +450,18 @@ class RealTimeWorld:
     def handle(self, topic: str, msg: Message) -> list:
         if isinstance(msg, Command):
             self.inner.take_command(msg)
+            now = None
             if msg.tick > self.last_tick.get(msg.robot, -1):
                 self.last_tick[msg.robot] = msg.tick
+                now = self.clock()
+                silence = now - self.heard_at.get(msg.robot, now)
+                if silence > self.longest_silence.get(msg.robot, 0.0):
+                    self.longest_silence[msg.robot] = silence
+                self.heard_at[msg.robot] = now
             sent = self.sent_at.get(msg.tick)
             if sent is not None and (msg.robot, msg.tick) not in self.answered:
                 self.answered.add((msg.robot, msg.tick))
-                self.latencies.append(self.clock() - sent)
+                self.latencies.append((now or self.clock()) - sent)
         return []
 
     def start(self) -> list[topics.Outgoing]:
@@ -498,12 +508,14 @@ class RealTimeWorld:
 
     def report(self) -> dict:
         """``late_ticks``, ``held_ticks``, ``sensing_sent_again`` (while holding), ``achieved_speed``
-        (simulation s per clock s) and ``sense_to_command`` (:func:`latency_stats`)."""
+        (simulation s per clock s), ``sense_to_command`` (:func:`latency_stats`) and
+        ``longest_silence_s`` (per robot id, the longest wall time between two of its new commands)."""
         elapsed = self.clock() - self.started if self.started is not None else 0.0
         world = self.inner
         return {"late_ticks": self.pacer.late, "held_ticks": self.pacer.held, "sensing_sent_again": self.asked_again,
                 "achieved_speed": world.tick * world.sc.dt / elapsed if elapsed > 0 else None,
-                "sense_to_command": latency_stats(self.latencies)}
+                "sense_to_command": latency_stats(self.latencies),
+                "longest_silence_s": {str(r): round(s, 4) for r, s in sorted(self.longest_silence.items())}}
 
     def _sent(self, tick: int, out: list[topics.Outgoing]) -> None:
         self.sent_at[tick] = self.clock()

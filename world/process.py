@@ -274,7 +274,7 @@ def main(args: argparse.Namespace) -> int:
                           complete=world.done, missed_ticks=world.missed_ticks,
                           missed_ticks_per_robot={str(r.id): int(m) for r, m in zip(sc.robots, world.misses)})
             runner.update({k: extra[k] for k in ("sense_to_command", "late_ticks", "held_ticks", "sensing_sent_again",
-                                                 "achieved_speed") if k in extra})
+                                                 "achieved_speed", "longest_silence_s") if k in extra})
 
             def summarise(processes: dict) -> dict:
                 return build_summary(sc, world.trajectory(), proc.plan, wall_s=wall, world=world, runner=runner,

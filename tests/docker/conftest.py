@@ -10,6 +10,7 @@ import warnings
 import pytest
 
 from docker_support import IMAGE, TAG, require_docker, run, sh
+from prerequisites import unavailable
 from support import REPO
 
 
@@ -40,8 +41,8 @@ def swarm_mode():
     if state == "inactive":
         sh("docker", "swarm", "init", "--advertise-addr", "127.0.0.1", timeout=120)
         inited = True
-    elif state != "active":
-        pytest.skip(f"this engine's swarm state is {state!r}: neither active nor inactive")
+    elif state != "active":  # pending, error, locked: no stack can deploy here
+        unavailable("docker", f"this engine's swarm state is {state!r}: neither active nor inactive")
     yield inited
     stuck = None
     if inited:

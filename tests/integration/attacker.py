@@ -42,6 +42,7 @@ def main() -> int:
     p.add_argument("--rate", type=float, default=200.0)
     p.add_argument("--seconds", type=float, default=5.0)
     p.add_argument("--wait", type=float, default=60.0, help="how long to wait for the world")
+    p.add_argument("--ready", default=None, help="a file to write once the world is seen, before the attack")
     a = p.parse_args()
     root = f"fxswarm/{a.swarm}"
     conf = zenoh.Config()
@@ -49,7 +50,8 @@ def main() -> int:
     conf.insert_json5("connect/endpoints", json.dumps([a.connect]))
     if a.mode == "peer":
         conf.insert_json5("listen/endpoints", json.dumps([f"{'tls' if a.tls else 'tcp'}/127.0.0.1:0"]))
-    conf.insert_json5("connect/timeout_ms", "3000")
+    # As long as it may wait: a refusal takes the other side's handshake, late on a loaded machine.
+    conf.insert_json5("connect/timeout_ms", str(int(max(3.0, a.wait) * 1000)))
     conf.insert_json5("scouting/multicast/enabled", "false")
     if a.tls:
         conf.insert_json5("transport/link/tls", a.tls)
@@ -93,6 +95,9 @@ def main() -> int:
         report["world_seen"] = world_up.wait(a.wait)
         if report["world_seen"]:
             cmd_pub = session.declare_publisher(f"{root}/agent/{a.victim}/cmd")
+            if a.ready:
+                with open(a.ready, "w") as f:
+                    f.write("seen the world\n")
             end = time.monotonic() + a.seconds
             seq = 0
             while time.monotonic() < end and not over.is_set():

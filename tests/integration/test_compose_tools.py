@@ -1,26 +1,26 @@
 """Tools around the compose file, run as real processes: a compose tool reading the files
-(skipped where none is installed; no Docker engine needed) and docker/entrypoint.sh."""
+(prerequisite ``compose``: skipped where none is installed, failed so where
+FXSWARM_REQUIRE_DOCKER=1; no Docker engine needed) and docker/entrypoint.sh."""
 
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 
 import pytest
 
 from fxswarm.cli import main as fxswarm_main
 
+from docker_support import compose_command
+from prerequisites import require
 from support import REPO, ring_scenario
 
 
+@pytest.mark.compose
 def test_compose_tool_reads_the_files(tmp_path):
     """The compose tool on this machine accepts the committed file and a generated 24-robot one."""
-    tool = (["docker", "compose"] if shutil.which("docker") and subprocess.run(
-        ["docker", "compose", "version"], capture_output=True).returncode == 0 else
-        ["docker-compose"] if shutil.which("docker-compose") else None)
-    if tool is None:
-        pytest.skip("no compose tool (`docker compose` or `docker-compose`) installed")
+    require("compose")
+    tool = compose_command()
     r = subprocess.run([*tool, "-f", str(REPO / "docker-compose.yml"), "config", "-q"], capture_output=True,
                        text=True, cwd=REPO)
     assert r.returncode == 0, r.stderr

@@ -1,6 +1,8 @@
 """A real Rerun viewer beside the recorder: a headless viewer process and the web viewer.
 
-Each test skips where this machine cannot run a headless viewer (``report.snapshot.can_render``).
+Each test needs prerequisite ``snapshot`` (``report.snapshot.can_render``: the viewer and Mesa's
+software Vulkan, .ci/install-snapshot-deps.sh): it skips without, fails so where
+``FXSWARM_REQUIRE_SNAPSHOT=1`` (tests/prerequisites.py).
 """
 
 from __future__ import annotations
@@ -14,7 +16,10 @@ from fxswarm.logger.recorder import RecorderOptions, SwarmRecorder
 from fxswarm.logger.replay import world_states
 from fxswarm.logger.sinks import open_recording, parse_outputs
 
+from prerequisites import require
 from support import RECORDED_S as DURATION, entities, has_colour, image_stats
+
+pytestmark = pytest.mark.snapshot
 
 
 @pytest.mark.slow
@@ -23,11 +28,9 @@ def test_file_grpc_and_web_outputs_at_once(live_run, scenario, tmp_path):
     import time
     import urllib.request
 
-    from fxswarm.report.snapshot import can_render, viewer_binary
+    from fxswarm.report.snapshot import viewer_binary
 
-    why = can_render()
-    if why:
-        pytest.skip(f"no headless viewer here: {why}")
+    require("snapshot")
     from rerun.experimental import ViewerClient
 
     port = free_port()
@@ -64,11 +67,7 @@ def test_file_grpc_and_web_outputs_at_once(live_run, scenario, tmp_path):
 
 @pytest.mark.slow
 def test_snapshot_renders_the_default_blueprint_headless(run_dir):
-    from fxswarm.report.snapshot import can_render
-
-    why = can_render()
-    if why:
-        pytest.skip(f"no headless rendering here: {why}")
+    require("snapshot")
     assert cli(["report", str(run_dir), "--snapshot", "--times", "9"]) == 0
     shot = run_dir / "snapshots" / "view_9s.png"
     size, ink, colours = image_stats(shot)

@@ -49,24 +49,35 @@ def test_lockstep_run_is_bit_identical_to_the_in_memory_sim_and_agents_hear_only
 def test_a_mesh_swarm_runs_on_its_direct_links_when_the_router_dies(launch_swarm):
     """In a mesh the router is only where the peers met: killed once the links are up (and the
     world has ticked), the run still completes, bit for bit the in-memory sim; routed, every
-    message would have gone through it."""
-    swarm = launch_swarm(PAPER_FAST, duration=4.0)
+    message would have gone through it.
+
+    The mesh takes wall time to form (seconds on a loaded machine) and a lock-step world ticks as
+    fast as the robots answer, so the wait for it would race the run's end. The world's clock is
+    held instead (``--wait-for gate/0``, a token this test declares) until the mesh has formed:
+    what is left between the clock's start and the kill is one signal, against 330 ticks."""
+    swarm = launch_swarm(PAPER_FAST, duration=4.0, world_args=("--wait-for", f"{GATE}/0"))
     assert swarm.swarm.topology == "mesh"  # auto, 6 robots
     environ = Path(f"/proc/{swarm.pid('agent-1')}/environ").read_bytes().split(b"\0")
     runtime = os.environ.get("ZENOH_RUNTIME", ZENOH_RUNTIME)  # the launcher's, unless the user set one
     assert f"ZENOH_RUNTIME={runtime}".encode() in environ
-    swarm.wait_for_sim_time(0.2)
-    # The world came last: wait until the launcher's own peer session links to every process
-    # (world, leader, 6 agents) directly, a sign that gossip has done its work.
-    session, end = swarm.swarm.bus.session, time.monotonic() + 30
+    # Wait until the launcher's own peer session links to every process (world, leader, 6
+    # agents) directly, a sign that gossip has done its work; the world waits for the gate.
+    session, end = swarm.swarm.bus.session, time.monotonic() + 60
     while len(session.info.peers_zid()) < 8 and time.monotonic() < end:
         swarm.pump(0.05)
     assert len(session.info.peers_zid()) == 8, "the mesh did not form"
+    assert swarm.sim_time() < 0, "the world ticked before the gate opened"
+    swarm.swarm.bus.declare_alive(GATE, 0)
+    swarm.wait_for_sim_time(0.2)
     swarm.kill("router")
     assert swarm.sim_time() < 3.5, "the run was nearly over before the router died: nothing tested"
     summary = swarm.wait_done(timeout=120)
     swarm.assert_matches_sim()
     assert summary["complete"] and summary["missed_ticks"] == 0
+
+
+#: The token the mesh test's world waits for before its clock starts (``fxswarm world --wait-for``).
+GATE = "test-gate"
 
 
 # --- every shipped scenario ------------------------------------------------------------------

@@ -9,7 +9,10 @@ import pytest
 from fxswarm.runtime.output import load_trajectory
 from fxswarm.core.metrics import formation_errors
 
-from support import PAPER_FAST
+from support import PAPER_FAST, measured
+
+#: The figures the paper-outcome tests bound (and print, ``MEASURED``, for their distribution).
+BOUNDED = ("min_object_distance_m", "formation_error_final_m", "estimate_error_final_m", "achieved_speed")
 
 SPEED_ALWAYS = 1.0  # real time at 100 ticks/s: holds with one swarm on the machine (not two at once)
 
@@ -48,8 +51,14 @@ def test_paper_fast_in_real_time_at_speed_4_meets_the_paper_outcome(launch_swarm
                                          "formation_error_final_m", "estimate_error_final_m",
                                          "min_object_distance_m")}
     print(f"speed 4 at load average {os.getloadavg()[0]:.1f}: {detail}")
-    assert summary["min_object_distance_m"] >= 1.8, detail
-    assert summary["formation_error_final_m"] <= 0.25, detail
+    measured("speed4", load1=os.getloadavg()[0], **{k: summary[k] for k in BOUNDED})
+    # Bounds from 26 runs on this 2-core machine at load average 9-156 (other test runs beside),
+    # each at mean -/+ 4 sd: closest approach 1.77-1.97 m (mean 1.88, sd 0.058; lock-step 1.98)
+    # against 1.65; final formation error 0.017-0.292 m (mean 0.091, sd 0.070) against 0.37, which
+    # 8 runs of 9 without the compensation missed (0.43-0.62, above); estimate error 0.02-0.14 m
+    # (mean 0.058, sd 0.027) against 0.25.
+    assert summary["min_object_distance_m"] >= 1.65, detail
+    assert summary["formation_error_final_m"] <= 0.37, detail
     assert summary["estimate_error_final_m"] <= 0.25, detail
 
 
@@ -63,6 +72,11 @@ def test_paper_fast_in_real_time_meets_the_real_time_outcome_on_a_loaded_machine
     detail = {k: summary.get(k) for k in ("late_ticks", "held_ticks", "achieved_speed", "sense_to_command",
                                          "formation_error_final_m", "estimate_error_final_m",
                                          "min_object_distance_m")}
+    measured("speed1", load1=os.getloadavg()[0], **{k: summary[k] for k in BOUNDED})
+    # Bounds from 25 runs on this 2-core machine at load average 9-167: closest approach
+    # 1.849-1.981 m (mean 1.958, sd 0.036) against 1.8 (mean - 4.4 sd); final formation error
+    # 0.010-0.193 m (mean 0.036, sd 0.037) and estimate error 0.027-0.155 m (mean 0.051,
+    # sd 0.023) against 0.25 m (mean + 5.8 and 8.6 sd).
     assert summary["min_object_distance_m"] >= 1.8, detail
     assert summary["formation_error_final_m"] <= 0.25, detail
     assert summary["estimate_error_final_m"] <= 0.25, detail
@@ -82,10 +96,16 @@ def test_a_robot_whose_answers_are_lost_is_asked_again_and_the_clock_is_not_held
     summary = swarm.wait_done(timeout=180)
     detail = {k: summary.get(k) for k in ("held_ticks", "sensing_sent_again", "achieved_speed", "wall_s")}
     print(detail)
+    measured("lost-answers", load1=os.getloadavg()[0], achieved_speed=summary["achieved_speed"],
+             held_ticks=summary["held_ticks"])
     assert summary["complete"] and summary["ticks"] == 300, detail
     assert summary["faults"]["links"]["agent:2->world/command"]["dropped"] > 100, summary["faults"]["links"]
     assert summary["sensing_sent_again"] > 0 and summary["held_ticks"] > 0, detail  # it lagged, and was asked
-    assert summary["achieved_speed"] > 0.5, detail
+    # Not held for seconds: the clock's holds, in pacer periods (10 ms), 17-41 in 17 runs at load
+    # average 8-50, 291 once at 85; without the asking again each hold ran its 1 s limit, 14 s in
+    # all (about 1400). The speed reached is the machine's more than the code's (0.20-0.95 in those
+    # runs, 0.20 at load 50 with 22 held): printed (MEASURED), not asserted.
+    assert summary["held_ticks"] < 700, detail
 
 
 @pytest.mark.zenoh
@@ -100,6 +120,12 @@ def test_a_robot_a_partition_cuts_off_from_the_world_is_not_waited_for(launch_sw
     summary = swarm.wait_done(timeout=180)
     detail = {k: summary.get(k) for k in ("held_ticks", "sensing_sent_again", "achieved_speed", "wall_s")}
     print(detail)
+    measured("partition", load1=os.getloadavg()[0], achieved_speed=summary["achieved_speed"],
+             held_ticks=summary["held_ticks"], wall_s=summary["wall_s"])
     assert summary["complete"] and summary["ticks"] == 300, detail
     assert summary["faults"]["links"]["agent:3->world/command"]["dropped"] >= 40, summary["faults"]["links"]
-    assert summary["achieved_speed"] > 0.5, detail
+    # Waiting for robot 3 holds each of the cut's 50 ticks for the 1 s limit, wall time on any
+    # machine: 53 s or more (43 s measured, above). Not waiting: 3.0-7.0 s in 16 runs at load
+    # average 8-56, 9.7 s once more at 55 (speed reached 0.31-1.00, held 0-616 periods: the
+    # machine's figures more than the code's, printed, not asserted). 30 s stands between.
+    assert summary["wall_s"] < 30.0, detail

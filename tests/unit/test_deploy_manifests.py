@@ -2,15 +2,14 @@
 
 The Kubernetes manifests are validated offline against the Kubernetes API schemas
 (``kubernetes-validate``, strict: unknown fields refused) for paper-fast and the 24-robot
-``large`` scenario; the stack file is read by the compose tool when one is installed (its v3
-schema covers ``deploy``). Real deployment on Swarm: tests/docker/test_stack.py.
+``large`` scenario; the stack file is read by the compose tool (its v3 schema covers
+``deploy``; prerequisite ``compose``). Real deployment on Swarm: tests/docker/test_stack.py.
 """
 
 from __future__ import annotations
 
 import base64
 import json
-import shutil
 import subprocess
 from pathlib import Path
 
@@ -106,13 +105,22 @@ def test_stack_file_one_scaled_agent_service_dnsrr_everywhere(tmp_path, name):
     world = services["world"]["command"]
     assert world[world.index("--wait-for") + 1] == "logger/0"
     assert (tmp_path / "scenario.toml").read_text() == path.read_text()
-    tool = (["docker", "compose"] if shutil.which("docker") and subprocess.run(
-        ["docker", "compose", "version"], capture_output=True).returncode == 0 else
-        ["docker-compose"] if shutil.which("docker-compose") else None)
-    if tool is not None:  # the compose tool's v3 schema knows deploy, configs, long ports
-        r = subprocess.run([*tool, "-f", str(tmp_path / "stack.yml"), "config", "-q"], capture_output=True, text=True,
-                           cwd=tmp_path)
-        assert r.returncode == 0, f"{' '.join(tool)}: {r.stderr}"
+
+
+@pytest.mark.compose
+@pytest.mark.parametrize("name", list(CONFIGS))
+def test_stack_file_passes_the_compose_tools_schema(tmp_path, name):
+    """The compose tool's v3 schema knows deploy, configs, long ports (prerequisite ``compose``:
+    skips without one, fails so where FXSWARM_REQUIRE_DOCKER=1)."""
+    from docker_support import compose_command
+    from prerequisites import require
+
+    require("compose")
+    tool = compose_command()
+    assert fxswarm_main(["stack", str(CONFIGS[name][0]), "--out", str(tmp_path)]) == 0
+    r = subprocess.run([*tool, "-f", str(tmp_path / "stack.yml"), "config", "-q"], capture_output=True, text=True,
+                       cwd=tmp_path)
+    assert r.returncode == 0, f"{' '.join(tool)}: {r.stderr}"
 
 
 def test_stack_refuses_robots_not_numbered_1_to_n(tmp_path):

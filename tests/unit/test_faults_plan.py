@@ -11,7 +11,7 @@ from fxswarm.agents.node import AgentNode
 from fxswarm.core.messages import Clock, Command, Estimate, LeaderState, Sense
 from fxswarm.core.scenario import ScenarioError, load, parse
 from fxswarm.faults.inbox import FaultyInbox, ReplayedSense
-from fxswarm.faults.plan import Cut, FaultPlan, LinkRule, ProcessFault, parse_faults, plan_of, resolve
+from fxswarm.faults.plan import FAULTABLE_KINDS, Cut, FaultPlan, LinkRule, ProcessFault, parse_faults, plan_of, resolve
 from fxswarm.faults.process import Mortal, ProcessSchedule
 
 from support import PAPER_FAST
@@ -91,7 +91,13 @@ def test_fates_are_pure_functions_of_seed_link_kind_and_tick():
     delays = np.array([f.delay for f in fa if not f.lost])
     assert delays.min() >= 0.02 and delays.max() < 0.07 and delays.std() > 0.01
     assert 0.07 < np.mean([f.copies == 2 for f in fa if not f.lost]) < 0.13
-    assert not a.fate("agent:1", "agent:2", "sense", 5, 0.05).lost or True  # kinds default: all
+    # A rule without `kinds` applies to every kind: each is lost at the rule's rate on its own draws.
+    for kind in FAULTABLE_KINDS:
+        lost_kind = np.array([a.fate("agent:1", "agent:2", kind, k, 0.0).lost for k in ticks])
+        assert 0.26 < lost_kind.mean() < 0.34, kind
+    # ... and one that names its kinds spares the others.
+    only = plan({"seed": 3, "links": [{"link": "agent:*->agent:*", "drop": 0.3, "kinds": ["estimate"]}]})
+    assert not any(only.fate("agent:1", "agent:2", "sense", k, 0.0).lost for k in ticks)
     assert a.fate("leader", "agent:1", "leader", 5, 0.05).lost is False  # no rule for the leader
 
 

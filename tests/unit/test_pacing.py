@@ -207,6 +207,25 @@ def test_realtime_world_ticks_on_time_and_measures_latency(sc):
     assert report["sense_to_command"]["p50_ms"] == pytest.approx(4.0)
 
 
+def test_realtime_world_reports_each_robots_longest_silence(sc):
+    """Robot 2 goes 0.5 s without a new command (a duplicate of an old one does not count), the
+    others answer every 10 ms: the world's record says so, per robot."""
+    clock = FakeClock()
+    rt = realtime_world(sc, clock, max_lag=0)
+    for k in range(100):
+        clock.advance(0.01)
+        for r in range(1, sc.n + 1):
+            if r != 2 or not 20 <= k < 70:
+                rt.handle(topics.command_topic(r), command(r, k, k * sc.dt, [0, 0, 1]))
+            elif k == 40:  # robot 2's old command again, late
+                rt.handle(topics.command_topic(r), command(r, 19, 19 * sc.dt, [0, 0, 1]))
+        rt.tick(range(1, sc.n + 1))
+    silence = rt.report()["longest_silence_s"]
+    assert sorted(silence) == [str(r) for r in range(1, sc.n + 1)]
+    assert silence["2"] == pytest.approx(0.51)
+    assert all(silence[str(r)] == pytest.approx(0.01) for r in range(1, sc.n + 1) if r != 2)
+
+
 def test_realtime_world_counts_a_late_tick(sc):
     clock = FakeClock()
     rt = realtime_world(sc, clock)
