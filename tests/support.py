@@ -29,6 +29,20 @@ SHORT_RUN_FAULTS = {
     "partitions": [{"start": 0.6, "end": 0.9, "isolate": [3]}],
     "leader_outages": [{"start": 1.0, "end": 1.2}],
 }
+
+
+def finish_faulted_lockstep_run(swarm) -> dict:
+    """Wait for a lock-step run under :data:`SHORT_RUN_FAULTS` to end and check what every such
+    run must show: bit for bit the sim's, no missed tick, the same degraded ticks as the sim,
+    and the partition seen (robot 3 extrapolating). Returns the run's summary."""
+    summary = swarm.wait_done(timeout=180)
+    expected = swarm.assert_matches_sim()
+    assert summary["complete"] and summary["missed_ticks"] == 0
+    assert summary["faults"]["degraded_ticks"] == expected["faults"]["degraded_ticks"]
+    assert summary["faults"]["degraded_ticks"]["extrapolating"].get("3", 0) > 0  # the partition bit
+    return summary
+
+
 #: Length of the recorded runs (conftest's ``scenario``), s: formation motion, no avoidance yet.
 RECORDED_S = 3.0
 
