@@ -123,6 +123,19 @@ def test_wilson_interval():
     assert wilson_interval(0, 0) is None
 
 
+@pytest.mark.parametrize("confidence", [0.95, 0.8, 0.99])
+def test_wilson_interval_is_scipys(confidence):
+    """The closed form (with the standard library's normal quantile) against scipy's own, every
+    success count of every run count up to 40."""
+    from scipy.stats import binomtest
+
+    for runs in range(1, 41):
+        for successes in range(runs + 1):
+            ci = binomtest(successes, runs).proportion_ci(confidence_level=confidence, method="wilson")
+            assert wilson_interval(successes, runs, confidence) == pytest.approx((ci.low, ci.high), abs=1e-12), \
+                (successes, runs)
+
+
 def summary_like(**over) -> dict:
     s = {"min_object_distance_m": 1.9, "min_obstacle_distance_m": 2.5, "formation_settle_s": 10.0,
          "estimate_settle_s": 5.0, "formation_error_final_m": 0.1, "estimate_error_final_m": 0.05,
