@@ -45,7 +45,7 @@ from fxswarm.study.campaign_plan import (
     write_scenarios,
 )
 from fxswarm.study.campaign_store import RunLog, campaign_document, claim_folder, read_runs, write_document
-from fxswarm.study.parallel import DASK_PREFIX, WorkerLost, completed
+from fxswarm.study.parallel import DASK_PREFIX, WorkerLost, completed, start_workers_early
 
 CONFIRM = "confirm.json"
 
@@ -160,6 +160,9 @@ def main(args: argparse.Namespace) -> int:
     from fxswarm.runtime.config import load_or_exit
 
     base = load_or_exit(args.config)
+    if args.executor == "local" and (args.workers or os.cpu_count() or 1) > 1:
+        # The workers' fork server imports what a run needs while this process plans the runs.
+        start_workers_early([__name__, "fxswarm.launch.sim"])
     criteria = Criteria(min_distance_m=args.min_distance or base.d / 2, settle_within_s=args.settle_within,
                         final_error_m=args.final_error or base.settle_tolerance)
     out = Path(args.out or f"runs/{base.name}-campaign")

@@ -62,6 +62,10 @@ def descendants(pid: int) -> list[int]:
     return out
 
 
+def parent_of(pid: int) -> int:
+    return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+
+
 def wait_gone(pids: list[int], timeout: float = 10.0) -> None:
     """Wait until none of ``pids`` is alive (a zombie counts as gone), or fail naming them."""
     def alive(pid: int) -> bool:
@@ -154,9 +158,10 @@ def test_ctrl_c_stops_the_campaign_and_its_workers_keeping_whole_lines(tmp_path)
 def test_a_killed_worker_ends_the_campaign_keeping_every_finished_run_and_the_rest_runs_again(tmp_path):
     out = tmp_path / "c"
     with campaign_under_way(out, 1) as proc:
-        workers = [p for p in descendants(proc.pid)
-                   if b"spawn_main" in Path(f"/proc/{p}/cmdline").read_bytes()
-                   and b"resource_tracker" not in Path(f"/proc/{p}/cmdline").read_bytes()]
+        below = descendants(proc.pid)
+        (server,) = [p for p in below if b"forkserver" in Path(f"/proc/{p}/cmdline").read_bytes()
+                     and parent_of(p) == proc.pid]
+        workers = [p for p in below if parent_of(p) == server]  # forked from the workers' fork server
         assert len(workers) == 2, workers
         os.kill(workers[0], signal.SIGKILL)  # as the kernel's OOM killer would
         code = proc.wait(60)
