@@ -204,7 +204,8 @@ def run_campaign(plan: Plan, out: Path, records: dict[str, dict], args: argparse
     signal.signal(signal.SIGTERM, _interrupted)  # SIGTERM stops the workers too, like Ctrl-C
     start, done = time.monotonic(), 0
     try:
-        for k, result in completed(run_case, cases, workers, None if args.executor == "local" else args.executor):
+        executor = None if args.executor == "local" else args.executor
+        for k, result in completed(run_case, cases, workers, executor, modules=[Path(m) for m in plan.files]):
             run = todo[k]
             record = record_of(run, plan.fingerprint, result)
             log.append(record)

@@ -6,11 +6,14 @@ from __future__ import annotations
 import multiprocessing
 import multiprocessing.connection
 import os
+import shutil
+import tempfile
 import signal
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
 
 #: ``--executor`` value that sends the work to a Dask scheduler: ``dask://HOST:PORT``.
 DASK_PREFIX = "dask://"
@@ -50,19 +53,21 @@ def parallel_map(fn: Callable[..., dict], cases: Sequence[tuple], workers: int,
 
 
 def completed(fn: Callable[..., dict], cases: Sequence[tuple], workers: int,
-              executor: str | None = None) -> Iterator[tuple[int, dict]]:
+              executor: str | None = None, modules: Sequence[Path] = ()) -> Iterator[tuple[int, dict]]:
     """``(k, fn(*cases[k]))`` for every case, as each finishes.
 
     ``fn`` must be importable at module level (workers import it again). ``executor``: None
     for local worker processes (``workers`` of them; with ``workers <= 1`` the cases run
     here, in order), or ``dask://HOST:PORT`` for a Dask distributed scheduler. Workers come
     from a fork server (:data:`_CONTEXT`), not a fork of this process: that would copy
-    whatever sessions or threads it holds. Leaving the loop
+    whatever sessions or threads it holds. ``modules``: Python module files or package
+    folders the cases import that only this machine has (a user's law); a Dask cluster gets
+    them first (local workers share this machine's files). Leaving the loop
     early (Ctrl-C, an exception, ``break``) stops every worker process at once; a worker that
     dies raises :class:`WorkerLost` instead of hanging.
     """
     if executor is not None and executor.startswith(DASK_PREFIX):
-        yield from _dask_completed(fn, cases, executor[len(DASK_PREFIX):])
+        yield from _dask_completed(fn, cases, executor[len(DASK_PREFIX):], modules)
     elif executor not in (None, "local"):
         raise ValueError(f"executor: expected 'local' or '{DASK_PREFIX}HOST:PORT', got {executor!r}")
     elif workers <= 1:
@@ -110,7 +115,7 @@ def _worker_started() -> None:
         threading.Thread(target=watch, daemon=True, name="caller-watch").start()
 
 
-def _dask_completed(fn, cases, address: str) -> Iterator[tuple[int, dict]]:
+def _dask_completed(fn, cases, address: str, modules: Sequence[Path]) -> Iterator[tuple[int, dict]]:
     try:
         from distributed import Client, as_completed
     except ImportError:
@@ -122,6 +127,7 @@ def _dask_completed(fn, cases, address: str) -> Iterator[tuple[int, dict]]:
         raise ValueError(f"executor {DASK_PREFIX}{address}: no Dask scheduler answers there ({exc})") from None
     futures = []
     try:
+        _upload(client, modules)
         # pure=False: two equal cases are still two runs (Dask would otherwise merge them).
         futures = [client.submit(fn, *case, pure=False) for case in cases]
         index = {f.key: k for k, f in enumerate(futures)}
@@ -132,3 +138,14 @@ def _dask_completed(fn, cases, address: str) -> Iterator[tuple[int, dict]]:
     finally:
         client.cancel(futures)
         client.close()
+
+
+def _upload(client, modules: Sequence[Path]) -> None:
+    """Send each module file (a package folder as a zip) to every worker, now and joining later:
+    Dask's upload_file puts it in the worker's folder on its import path."""
+    with tempfile.TemporaryDirectory(prefix="fxswarm-upload-") as tmp:
+        for module in modules:
+            module = Path(module)
+            if module.is_dir():  # a zip of the package folder imports as the package
+                module = Path(shutil.make_archive(str(Path(tmp) / module.name), "zip", module.parent, module.name))
+            client.upload_file(str(module))

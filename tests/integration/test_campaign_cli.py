@@ -225,6 +225,45 @@ def test_a_campaign_on_a_dask_cluster_gives_the_same_campaign_json_as_the_local_
     assert sorted(r["id"] for r in records(dask)) == sorted(r["id"] for r in records(local))
 
 
+STILL = """
+class Still:
+    \"\"\"A user's law that holds its robot still.\"\"\"
+
+    def __init__(self, params, robot_id):
+        pass
+
+    def estimate_rate(self, view):
+        return (0.0, 0.0, 0.0)
+
+    def velocity(self, view, estimate_rate):
+        return (0.0, 0.0, 0.0)
+"""
+
+
+def test_a_users_law_modules_beside_the_scenario_are_sent_to_the_dask_workers(tmp_path, dask_cluster):
+    """A law file and a law package that only this machine has reach every Dask worker (a real
+    cluster would not see the campaign's folder): the runs fly them, and each worker holds them."""
+    config = tmp_path / "paper-fast.toml"
+    config.write_text(Path(PAPER_FAST).read_text())
+    (tmp_path / "stilllaw.py").write_text(STILL)
+    (tmp_path / "stillpkg").mkdir()
+    (tmp_path / "stillpkg" / "__init__.py").write_text(STILL)
+    out = tmp_path / "c"
+    argv = [FXSWARM, "campaign", str(config), "--out", str(out), "--fault", "agent:*->agent:* drop={loss}",
+            "--grid", "loss=0,0.4", "--grid", "scenario.duration=0.5", "--laws", "stilllaw:Still,stillpkg:Still",
+            "--executor", f"dask://{dask_cluster[len('tcp://'):]}"]
+    proc = subprocess.run(argv, capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
+    assert proc.returncode == 0, proc.stderr
+    recs = records(out)
+    assert sorted(r["law"] for r in recs) == ["stilllaw:Still"] * 2 + ["stillpkg:Still"] * 2
+    assert all(r["status"] == "done" and not r["metrics"]["law_errors"] for r in recs), recs
+    from distributed import Client
+
+    with Client(dask_cluster, timeout="60s") as client:
+        held = client.run(lambda dask_worker: sorted(os.listdir(dask_worker.local_directory)))
+    assert len(held) == 2 and all({"stilllaw.py", "stillpkg.zip"} <= set(names) for names in held.values()), held
+
+
 def test_an_executor_that_does_not_answer_is_refused_in_one_line(tmp_path):
     proc = subprocess.run(campaign_argv(tmp_path / "c", "--executor", f"dask://127.0.0.1:{free_port()}"),
                           capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL)
