@@ -21,13 +21,16 @@ DASK_PREFIX = "dask://"
 #: Local workers are forked from a fork server: a fresh interpreter (nothing of the caller's
 #: sessions or threads) that imports the workers' modules once, so a worker starts in
 #: milliseconds instead of each importing numpy and fxswarm again (about 0.7 s, on every core
-#: at once, at the start of every campaign).
-_CONTEXT = multiprocessing.get_context("forkserver")
+#: at once, at the start of every campaign). Windows has no fork server: workers are spawned there.
+_FORKSERVER = "forkserver" in multiprocessing.get_all_start_methods()
+_CONTEXT = multiprocessing.get_context("forkserver" if _FORKSERVER else "spawn")
 
 
 def start_workers_early(modules: Sequence[str]) -> None:
     """Start the fork server now, importing ``modules``, while the caller does other work (a
     campaign plans its runs): the workers of :func:`completed` then start at once. Optional."""
+    if not _FORKSERVER:
+        return
     _CONTEXT.set_forkserver_preload(sorted(set(modules)))
     from multiprocessing import forkserver
 
