@@ -33,7 +33,7 @@ from fxswarm.core.scenario import load
 from fxswarm.faults.plan import DegradedLimits
 
 from docker_support import TAG, compose_command, run as _run
-from support import PAPER_FAST, REPO
+from support import PAPER_FAST, REPO, measured
 
 # The first test also waits for the images (from a clean machine: ~4 min base image + ~1.5 min
 # project image) and a compose run: more than the suite's default 600 s may pass under load.
@@ -384,27 +384,30 @@ def test_docker_kill_and_start_of_an_agent_rejoins_the_swarm(broken_run):
     p, obs = broken_run
     print(f"kill at t = {obs.killed_at_t:.2f} s: seen gone after {obs.gone_after_s:.2f} s; docker start -> "
           f"alive after {obs.back_after_s:.1f} s; first command again at t = {obs.rejoined_at_t:.2f} s")
-    assert obs.gone_after_s < 10, "a killed container's liveliness token goes at once (no lease to wait)"
-    assert ("agent/3", False) in obs.alive_changes and obs.alive_changes[-1:] != [("agent/3", False)]
     assert obs.exit_codes["world"] == 0, p.logs()
     s = p.summary()
-    assert s["complete"] and s["clock"] == "realtime"
-    # While it was dead the world held robot 3 still and its neighbours saw its estimate go stale
-    # (both in the record). How long it was dead depends on how fast docker starts a container,
-    # so the test asks that the silence is there, not how many ticks it lasted.
-    held = s["faults"]["degraded_ticks"]
     dead_s = obs.rejoined_at_t - obs.killed_at_t
-    assert dead_s > SILENT_HOLD_S, f"robot 3 was silent only {dead_s:.2f} s: too short to test the hold"
-    assert held.get("world_held_at_zero", {}).get("3", 0) > 0, held
-    sc = load(SCENARIO)
-    assert sum(held.get("stale_neighbour", {}).get(str(j), 0) for j in sc.neighbours(3)) > 0, held
-    # ... and once back it flew in formation again (judged before the network fault that follows).
     with np.load(p.out / "trajectory.npz") as traj:
         t, err = traj["t"], formation_errors({k: traj[k] for k in ("p", "p0", "offsets")})
     j, k = (int(np.searchsorted(t, x)) for x in (obs.rejoined_at_t, obs.cut_at_t))
     print(f"robot 3 formation error {err[j, 2]:.3f} m when it rejoined at t = {t[j]:.2f} s, {err[k, 2]:.3f} m "
           f"{t[k] - t[j]:.1f} s later (worst robot then {err[k].max():.3f} m: avoidance), "
           f"{err[-1, 2]:.3f} m at the end")
+    measured("docker-rejoin", load1=os.getloadavg()[0], gone_after_s=obs.gone_after_s,
+             back_after_s=obs.back_after_s, dead_s=dead_s, err3_at_cut_m=float(err[k, 2]),
+             err3_final_m=float(err[-1, 2]), min_object_distance_m=s["min_object_distance_m"])
+    assert obs.gone_after_s < 10, "a killed container's liveliness token goes at once (no lease to wait)"
+    assert ("agent/3", False) in obs.alive_changes and obs.alive_changes[-1:] != [("agent/3", False)]
+    assert s["complete"] and s["clock"] == "realtime"
+    # While it was dead the world held robot 3 still and its neighbours saw its estimate go stale
+    # (both in the record). How long it was dead depends on how fast docker starts a container,
+    # so the test asks that the silence is there, not how many ticks it lasted.
+    held = s["faults"]["degraded_ticks"]
+    assert dead_s > SILENT_HOLD_S, f"robot 3 was silent only {dead_s:.2f} s: too short to test the hold"
+    assert held.get("world_held_at_zero", {}).get("3", 0) > 0, held
+    sc = load(SCENARIO)
+    assert sum(held.get("stale_neighbour", {}).get(str(j), 0) for j in sc.neighbours(3)) > 0, held
+    # ... and once back it flew in formation again (judged before the network fault that follows).
     assert err[k, 2] <= 1.0, "closing on its slot before the next fault"
     assert err[-1, 2] <= 0.5
     assert s["min_object_distance_m"] >= 1.0
@@ -413,6 +416,7 @@ def test_docker_kill_and_start_of_an_agent_rejoins_the_swarm(broken_run):
 @pytest.mark.slow
 def test_docker_network_disconnect_is_seen_as_staleness_and_recovered_from(broken_run):
     p, obs = broken_run
+    assert obs.exit_codes["world"] == 0, p.logs()
     s = p.summary()
     latency = s["sense_to_command"]
     print(f"agent 5 off the network {obs.cut_s:.1f} s from t = {obs.cut_at_t:.2f} s: no command of it "
@@ -420,6 +424,12 @@ def test_docker_network_disconnect_is_seen_as_staleness_and_recovered_from(broke
           f"fresh again at t = {obs.resumed_at_t:.2f} s; the world's worst sensing-to-command "
           f"latency {latency['max_ms']:.0f} ms; degraded ticks {s['faults']['degraded_ticks']}; the world's "
           f"longest silence per robot {s['longest_silence_s']} s")
+    with np.load(p.out / "trajectory.npz") as traj:
+        err = formation_errors({k: traj[k] for k in ("p", "p0", "offsets")})
+    print(f"robot 5 final formation error {err[-1, 4]:.3f} m (worst robot {err[-1].max():.3f} m)")
+    measured("docker-disconnect", load1=os.getloadavg()[0], cut_s=obs.cut_s, silent_wall_s=obs.silent_wall_s,
+             world_silence5_s=s["longest_silence_s"]["5"], resumed_after_t_s=obs.resumed_at_t - obs.cut_at_t,
+             stalest_s=obs.stalest_s, err5_final_m=float(err[-1, 4]))
     # Seen: nothing of robot 5 crosses the cut, as a watcher on the router sees it and as the
     # world does: its longest wait for a new command of robot 5 (summary longest_silence_s). What
     # the world did meanwhile varies with where Zenoh's queues fill (held its clock for the deaf
@@ -430,10 +440,7 @@ def test_docker_network_disconnect_is_seen_as_staleness_and_recovered_from(broke
     # completes, and robot 5 ends in formation.
     assert ("agent/5", False) not in obs.alive_changes, "a cut shorter than the lease is no death"
     assert obs.resumed_at_t - obs.cut_at_t < CUT_S + 20
-    assert obs.exit_codes["world"] == 0 and s["complete"], p.logs()
-    with np.load(p.out / "trajectory.npz") as traj:
-        err = formation_errors({k: traj[k] for k in ("p", "p0", "offsets")})
-    print(f"robot 5 final formation error {err[-1, 4]:.3f} m (worst robot {err[-1].max():.3f} m)")
+    assert s["complete"], p.logs()
     assert err[-1, 4] <= 0.5
 
 
@@ -462,14 +469,16 @@ def test_docker_network_cut_past_the_lease_the_agent_waits_for_the_world_and_rej
     assert p.wait_exit("world", 240) == 0, p.logs()
     said = [line for line in p.logs().splitlines() if "agent-5" in line and "fxswarm agent 5" in line]
     print(f"agent 5 off the network {cut_s:.1f} s, flying again at t = {back_at_t:.2f} s; it said: {said}")
-    # Cut off, the agent has lost its router (and with it the world): it says so, and that it is back.
-    assert any("lost every router" in line or "lost the world" in line for line in said), said
-    assert any("reached the swarm again" in line or "the world is back" in line for line in said), said
     s = p.summary()
-    assert s["complete"]
     with np.load(p.out / "trajectory.npz") as traj:
         err = formation_errors({k: traj[k] for k in ("p", "p0", "offsets")})
     print(f"robot 5 final formation error {err[-1, 4]:.3f} m (worst robot {err[-1].max():.3f} m)")
+    measured("docker-lease-cut", load1=os.getloadavg()[0], cut_s=cut_s, back_at_t=back_at_t,
+             err5_final_m=float(err[-1, 4]), worst_final_m=float(err[-1].max()))
+    # Cut off, the agent has lost its router (and with it the world): it says so, and that it is back.
+    assert any("lost every router" in line or "lost the world" in line for line in said), said
+    assert any("reached the swarm again" in line or "the world is back" in line for line in said), said
+    assert s["complete"]
     # Back in formation: 0.15-0.58 m in 3 runs (real time on a loaded machine; with robot 5
     # left behind, held still while the leader climbs at 1 m/s, it would be metres off).
     assert err[-1, 4] <= 1.0
