@@ -242,6 +242,7 @@ class FaultObservations:
     cut_at_t: float = 0.0  # simulation time of the network disconnect of agent 5
     cut_s: float = 0.0  # wall seconds agent 5 was off the network
     silent_wall_s: float = 0.0  # longest wall gap between agent 5's commands reaching the observer
+    gap_before_cut_s: float = 0.0  # the same, over the run before the cut (its ordinary gaps)
     stalest_s: float = 0.0  # oldest (simulation s behind the swarm) a command of agent 5 arrived
     resumed_at_t: float = 0.0  # simulation time of agent 5's first fresh command after the cut
     alive_changes: list[tuple[str, bool]] = field(default_factory=list)
@@ -354,6 +355,7 @@ def broken_run(project_factory) -> tuple[ComposeProject, FaultObservations]:
         # docker network disconnect: the container lives on, deaf and mute, for CUT_S seconds.
         agent5 = p.container("agent-5")
         heard = len(watcher.cmds[5])
+        obs.gap_before_cut_s = float(np.diff([w for w, _, _ in watcher.cmds[5]]).max())
         obs.cut_at_t = watcher.latest_t(5)
         t0 = time.monotonic()
         _run(["docker", "network", "disconnect", p.network(), agent5], 30, "network disconnect")
@@ -367,7 +369,14 @@ def broken_run(project_factory) -> tuple[ComposeProject, FaultObservations]:
         def fresh_again() -> bool:
             return any(age < FRESH_S for _, _, age in watcher.cmds[5][reconnected:])
 
-        watcher.wait("a fresh command from robot 5 after the reconnect", fresh_again, 60)
+        try:
+            watcher.wait("a fresh command from robot 5 after the reconnect", fresh_again, 60)
+        except pytest.fail.Exception:
+            ages = [age for _, _, age in watcher.cmds[5][reconnected:]]
+            measured("docker-broken-run-unresumed", load1=os.getloadavg()[0], killed_at_t=obs.killed_at_t,
+                     rejoined_at_t=obs.rejoined_at_t, cut_at_t=obs.cut_at_t, world_t=watcher.world_t,
+                     cmds5_since=len(ages), youngest_age_s=min(ages, default=-1.0))
+            raise
         after = np.array(watcher.cmds[5][max(0, heard - 1):])
         obs.silent_wall_s = float(np.diff(after[:, 0]).max())
         obs.stalest_s = float(after[:, 2].max())
@@ -394,7 +403,8 @@ def test_docker_kill_and_start_of_an_agent_rejoins_the_swarm(broken_run):
           f"{t[k] - t[j]:.1f} s later (worst robot then {err[k].max():.3f} m: avoidance), "
           f"{err[-1, 2]:.3f} m at the end")
     measured("docker-rejoin", load1=os.getloadavg()[0], gone_after_s=obs.gone_after_s,
-             back_after_s=obs.back_after_s, dead_s=dead_s, err3_at_cut_m=float(err[k, 2]),
+             back_after_s=obs.back_after_s, dead_s=dead_s, rejoined_at_t=obs.rejoined_at_t,
+             cut_at_t=obs.cut_at_t, err3_at_cut_m=float(err[k, 2]),
              err3_final_m=float(err[-1, 2]), min_object_distance_m=s["min_object_distance_m"])
     assert obs.gone_after_s < 10, "a killed container's liveliness token goes at once (no lease to wait)"
     assert ("agent/3", False) in obs.alive_changes and obs.alive_changes[-1:] != [("agent/3", False)]
@@ -428,7 +438,9 @@ def test_docker_network_disconnect_is_seen_as_staleness_and_recovered_from(broke
         err = formation_errors({k: traj[k] for k in ("p", "p0", "offsets")})
     print(f"robot 5 final formation error {err[-1, 4]:.3f} m (worst robot {err[-1].max():.3f} m)")
     measured("docker-disconnect", load1=os.getloadavg()[0], cut_s=obs.cut_s, silent_wall_s=obs.silent_wall_s,
-             world_silence5_s=s["longest_silence_s"]["5"], resumed_after_t_s=obs.resumed_at_t - obs.cut_at_t,
+             world_silence5_s=s["longest_silence_s"]["5"], gap_before_cut_s=obs.gap_before_cut_s,
+             world_silence_others_s=max(v for r, v in s["longest_silence_s"].items() if r not in ("3", "5")),
+             resumed_after_t_s=obs.resumed_at_t - obs.cut_at_t,
              stalest_s=obs.stalest_s, err5_final_m=float(err[-1, 4]))
     # Seen: nothing of robot 5 crosses the cut, as a watcher on the router sees it and as the
     # world does: its longest wait for a new command of robot 5 (summary longest_silence_s). What
