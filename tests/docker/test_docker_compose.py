@@ -300,11 +300,12 @@ FRESH_S = 0.2  # a command at most this far (simulation s) behind the swarm's ne
 REJOIN_SETTLE_S = 10.0  # simulation s a restarted robot gets to fly back into formation
 SILENT_HOLD_S = DegradedLimits.silent_hold  # the world holds a robot silent longer than this at zero velocity
 # How long the real-time runs last, simulation s: the faults and the recovery from each must fit.
-# At load 24-34 (2 cores), broken_run cut robot 5 at t = 27-51 s (robot 3 dead 12-26 s) and robot
-# 5 was fresh again 1.7-19 s after its cut; 2 of 3 runs of 55 s ended first. Worst 51 + 19 = 70 s.
-BROKEN_RUN_S = 80.0
-# The cut past the lease: robot 5 flying again at t = 17-44 s, and 7 s later still 3.3 m off its
-# slot, 11 s later 0.02 m; 2 of 4 runs of 45 s ended first. Worst 44 + 11 = 55 s.
+# 10 runs at load 19-34 (2 cores, another suite running): broken_run cut robot 5 at t = 27-51 s
+# (robot 3 dead 12-36 s), robot 5 was fresh again 1.7-24 s after its cut and 0.03 m off its slot
+# 8 s after that; 2 of 3 runs of 55 s ended before it was fresh. Worst 51 + 24 + 8 = 83 s: 95 s.
+BROKEN_RUN_S = 95.0
+# The cut past the lease: robot 5 flying again at t = 15-44 s, 7 s later still 3.3 m off its slot,
+# 11 s later 0.02 m; 2 of 4 runs of 45 s ended before it was back. Worst 44 + 11 = 55 s: 70 s.
 LEASE_RUN_S = 70.0
 
 
@@ -413,7 +414,10 @@ def test_docker_kill_and_start_of_an_agent_rejoins_the_swarm(broken_run):
              back_after_s=obs.back_after_s, dead_s=dead_s, rejoined_at_t=obs.rejoined_at_t,
              cut_at_t=obs.cut_at_t, err3_at_cut_m=float(err[k, 2]),
              err3_final_m=float(err[-1, 2]), min_object_distance_m=s["min_object_distance_m"])
-    assert obs.gone_after_s < 10, "a killed container's liveliness token goes at once (no lease to wait)"
+    # Real-time figures: 8 runs at load 19-34 (2 cores, another suite running; MEASURED docker-rejoin).
+    # Seen gone 0.24-13 s after the kill: a token left to run out its lease goes some 10 s after,
+    # inside that spread (the watcher itself lags seconds at this load), so "at once, not by the
+    # lease" is printed only; that it goes at all, broken_run waits for (30 s).
     assert ("agent/3", False) in obs.alive_changes and obs.alive_changes[-1:] != [("agent/3", False)]
     assert s["complete"] and s["clock"] == "realtime"
     # While it was dead the world held robot 3 still and its neighbours saw its estimate go stale
@@ -424,10 +428,14 @@ def test_docker_kill_and_start_of_an_agent_rejoins_the_swarm(broken_run):
     assert held.get("world_held_at_zero", {}).get("3", 0) > 0, held
     sc = load(SCENARIO)
     assert sum(held.get("stale_neighbour", {}).get(str(j), 0) for j in sc.neighbours(3)) > 0, held
-    # ... and once back it flew in formation again (judged before the network fault that follows).
-    assert err[k, 2] <= 1.0, "closing on its slot before the next fault"
+    # ... and once back it flew in formation again (judged before the network fault that follows):
+    # it rejoined 5.5-22 m off its slot, 10 s later it was 0.03-0.59 m off (bound 2 m: 3.4 x the
+    # worst; a robot that does not fly back stays metres off), at the end 0.006-0.09 m (0.5 m: 5.7 x).
+    assert err[k, 2] <= 2.0, "closing on its slot before the next fault"
     assert err[-1, 2] <= 0.5
-    assert s["min_object_distance_m"] >= 1.0
+    # Closest to an object: 1.60-1.91 m (mean 1.80, sd 0.10; the repulsive zone is 2 m): 1.2 m is
+    # mean - 6 sd, the worst less 0.4 m; an avoidance that lets a robot 0.8 m into the zone fails.
+    assert s["min_object_distance_m"] >= 1.2
 
 
 @pytest.mark.slow
@@ -453,13 +461,19 @@ def test_docker_network_disconnect_is_seen_as_staleness_and_recovered_from(broke
     # world does: its longest wait for a new command of robot 5 (summary longest_silence_s). What
     # the world did meanwhile varies with where Zenoh's queues fill (held its clock for the deaf
     # robot, or answered its sensing a cut late, or neither stood out), so that is printed only.
+    # Both are floors load only raises (8 runs at load 19-34: 3.3-25 s at the watcher, 3.1-4.0 s at
+    # the world, for a 2.2-4.1 s cut). Loaded, they do not tell the cut from a stall: robot 5's
+    # longest gap before the cut was 8.9-21 s at the watcher and the world's longest silence of an
+    # uncut robot 3.2-5.0 s; only on a quiet machine do they catch a cut that cut nothing.
     assert obs.silent_wall_s >= 0.5 * CUT_S, "no command of robot 5 crosses a cut network"
     assert s["longest_silence_s"]["5"] >= 0.5 * CUT_S, s["longest_silence_s"]
-    # Recovered: never taken for dead (the cut is shorter than the lease), fresh again, the run
-    # completes, and robot 5 ends in formation.
+    # Recovered: never taken for dead (the cut is shorter than the lease), fresh again (broken_run
+    # waits for it), the run completes, and robot 5 ends in formation. How long it took is printed
+    # only: 1.7-24 s of simulation after the cut in those runs (in 2 more, a 55 s run ended
+    # first), too spread to bound.
     assert ("agent/5", False) not in obs.alive_changes, "a cut shorter than the lease is no death"
-    assert obs.resumed_at_t - obs.cut_at_t < CUT_S + 20
     assert s["complete"], p.logs()
+    # 0.006-0.07 m off its slot at the end in those runs: 0.5 m is 7 x the worst; left behind, metres.
     assert err[-1, 4] <= 0.5
 
 
@@ -498,6 +512,7 @@ def test_docker_network_cut_past_the_lease_the_agent_waits_for_the_world_and_rej
     assert any("lost every router" in line or "lost the world" in line for line in said), said
     assert any("reached the swarm again" in line or "the world is back" in line for line in said), said
     assert s["complete"]
-    # Back in formation: 0.15-0.58 m in 3 runs (real time on a loaded machine; with robot 5
-    # left behind, held still while the leader climbs at 1 m/s, it would be metres off).
-    assert err[-1, 4] <= 1.0
+    # Back in formation: 0.008-0.058 m in 6 runs of LEASE_RUN_S at load 19-30 (MEASURED
+    # docker-lease-cut); 0.5 m is 8.6 x the worst. Left behind, held still while the leader climbs
+    # at 1 m/s, it is metres off (3.3 and 31 m in the runs of 45 s that ended before it was back).
+    assert err[-1, 4] <= 0.5
