@@ -33,7 +33,7 @@ from fxswarm.core.scenario import load
 from fxswarm.faults.plan import DegradedLimits
 
 from docker_support import TAG, compose_command, run as _run
-from support import PAPER_FAST, REPO
+from support import PAPER_FAST, REPO, measured
 
 # The first test also waits for the images (from a clean machine: ~4 min base image + ~1.5 min
 # project image) and a compose run: more than the suite's default 600 s may pass under load.
@@ -242,6 +242,7 @@ class FaultObservations:
     cut_at_t: float = 0.0  # simulation time of the network disconnect of agent 5
     cut_s: float = 0.0  # wall seconds agent 5 was off the network
     silent_wall_s: float = 0.0  # longest wall gap between agent 5's commands reaching the observer
+    gap_before_cut_s: float = 0.0  # the same, over the run before the cut (its ordinary gaps)
     stalest_s: float = 0.0  # oldest (simulation s behind the swarm) a command of agent 5 arrived
     resumed_at_t: float = 0.0  # simulation time of agent 5's first fresh command after the cut
     alive_changes: list[tuple[str, bool]] = field(default_factory=list)
@@ -298,6 +299,14 @@ CUT_S = 2.0
 FRESH_S = 0.2  # a command at most this far (simulation s) behind the swarm's newest is fresh
 REJOIN_SETTLE_S = 10.0  # simulation s a restarted robot gets to fly back into formation
 SILENT_HOLD_S = DegradedLimits.silent_hold  # the world holds a robot silent longer than this at zero velocity
+# How long the real-time runs last, simulation s: the faults and the recovery from each must fit.
+# 11 runs at load 18-34 (2 cores, another suite running): broken_run cut robot 5 at t = 27-51 s
+# (robot 3 dead 12-36 s), robot 5 was fresh again 1.7-24 s after its cut and 0.03 m off its slot
+# 8 s after that; 2 of 3 runs of 55 s ended before it was fresh. Worst 51 + 24 + 8 = 83 s: 95 s.
+BROKEN_RUN_S = 95.0
+# The cut past the lease: robot 5 flying again at t = 15-44 s, 7 s later still 3.3 m off its slot,
+# 11 s later 0.02 m; 2 of 4 runs of 45 s ended before it was back. Worst 44 + 11 = 55 s: 70 s.
+LEASE_RUN_S = 70.0
 
 
 def flying_realtime_swarm(project_factory, duration: float) -> tuple[ComposeProject, Observer]:
@@ -320,10 +329,10 @@ def flying_realtime_swarm(project_factory, duration: float) -> tuple[ComposeProj
 
 @pytest.fixture(scope="module")
 def broken_run(project_factory) -> tuple[ComposeProject, FaultObservations]:
-    """The paper scenario in real time (speed 1), 55 s instead of 40 (room for both faults and
-    the recovery from each on a loaded machine); agent 3 killed and started again, agent 5 cut
-    off the network for a few seconds; then run to its end."""
-    p, watcher = flying_realtime_swarm(project_factory, 55.0)
+    """The paper scenario in real time (speed 1), BROKEN_RUN_S instead of 40 s (room for both
+    faults and the recovery from each on a loaded machine); agent 3 killed and started again,
+    agent 5 cut off the network for a few seconds; then run to its end."""
+    p, watcher = flying_realtime_swarm(project_factory, BROKEN_RUN_S)
     obs = FaultObservations()
     try:
         # docker kill: the process dies with its container; liveliness says so at once.
@@ -354,6 +363,7 @@ def broken_run(project_factory) -> tuple[ComposeProject, FaultObservations]:
         # docker network disconnect: the container lives on, deaf and mute, for CUT_S seconds.
         agent5 = p.container("agent-5")
         heard = len(watcher.cmds[5])
+        obs.gap_before_cut_s = float(np.diff([w for w, _, _ in watcher.cmds[5]]).max())
         obs.cut_at_t = watcher.latest_t(5)
         t0 = time.monotonic()
         _run(["docker", "network", "disconnect", p.network(), agent5], 30, "network disconnect")
@@ -367,7 +377,14 @@ def broken_run(project_factory) -> tuple[ComposeProject, FaultObservations]:
         def fresh_again() -> bool:
             return any(age < FRESH_S for _, _, age in watcher.cmds[5][reconnected:])
 
-        watcher.wait("a fresh command from robot 5 after the reconnect", fresh_again, 60)
+        try:
+            watcher.wait("a fresh command from robot 5 after the reconnect", fresh_again, 60)
+        except pytest.fail.Exception:
+            ages = [age for _, _, age in watcher.cmds[5][reconnected:]]
+            measured("docker-broken-run-unresumed", load1=os.getloadavg()[0], killed_at_t=obs.killed_at_t,
+                     rejoined_at_t=obs.rejoined_at_t, cut_at_t=obs.cut_at_t, world_t=watcher.world_t,
+                     cmds5_since=len(ages), youngest_age_s=min(ages, default=-1.0))
+            raise
         after = np.array(watcher.cmds[5][max(0, heard - 1):])
         obs.silent_wall_s = float(np.diff(after[:, 0]).max())
         obs.stalest_s = float(after[:, 2].max())
@@ -384,35 +401,47 @@ def test_docker_kill_and_start_of_an_agent_rejoins_the_swarm(broken_run):
     p, obs = broken_run
     print(f"kill at t = {obs.killed_at_t:.2f} s: seen gone after {obs.gone_after_s:.2f} s; docker start -> "
           f"alive after {obs.back_after_s:.1f} s; first command again at t = {obs.rejoined_at_t:.2f} s")
-    assert obs.gone_after_s < 10, "a killed container's liveliness token goes at once (no lease to wait)"
-    assert ("agent/3", False) in obs.alive_changes and obs.alive_changes[-1:] != [("agent/3", False)]
     assert obs.exit_codes["world"] == 0, p.logs()
     s = p.summary()
-    assert s["complete"] and s["clock"] == "realtime"
-    # While it was dead the world held robot 3 still and its neighbours saw its estimate go stale
-    # (both in the record). How long it was dead depends on how fast docker starts a container,
-    # so the test asks that the silence is there, not how many ticks it lasted.
-    held = s["faults"]["degraded_ticks"]
     dead_s = obs.rejoined_at_t - obs.killed_at_t
-    assert dead_s > SILENT_HOLD_S, f"robot 3 was silent only {dead_s:.2f} s: too short to test the hold"
-    assert held.get("world_held_at_zero", {}).get("3", 0) > 0, held
-    sc = load(SCENARIO)
-    assert sum(held.get("stale_neighbour", {}).get(str(j), 0) for j in sc.neighbours(3)) > 0, held
-    # ... and once back it flew in formation again (judged before the network fault that follows).
     with np.load(p.out / "trajectory.npz") as traj:
         t, err = traj["t"], formation_errors({k: traj[k] for k in ("p", "p0", "offsets")})
     j, k = (int(np.searchsorted(t, x)) for x in (obs.rejoined_at_t, obs.cut_at_t))
     print(f"robot 3 formation error {err[j, 2]:.3f} m when it rejoined at t = {t[j]:.2f} s, {err[k, 2]:.3f} m "
           f"{t[k] - t[j]:.1f} s later (worst robot then {err[k].max():.3f} m: avoidance), "
           f"{err[-1, 2]:.3f} m at the end")
-    assert err[k, 2] <= 1.0, "closing on its slot before the next fault"
+    measured("docker-rejoin", load1=os.getloadavg()[0], gone_after_s=obs.gone_after_s,
+             back_after_s=obs.back_after_s, dead_s=dead_s, rejoined_at_t=obs.rejoined_at_t,
+             cut_at_t=obs.cut_at_t, err3_at_cut_m=float(err[k, 2]),
+             err3_final_m=float(err[-1, 2]), min_object_distance_m=s["min_object_distance_m"])
+    # Real-time figures: 9 runs at load 19-34 (2 cores, another suite running; MEASURED docker-rejoin).
+    # Seen gone 0.24-13 s after the kill: a token left to run out its lease goes some 10 s after,
+    # inside that spread (the watcher itself lags seconds at this load), so "at once, not by the
+    # lease" is printed only; that it goes at all, broken_run waits for (30 s).
+    assert ("agent/3", False) in obs.alive_changes and obs.alive_changes[-1:] != [("agent/3", False)]
+    assert s["complete"] and s["clock"] == "realtime"
+    # While it was dead the world held robot 3 still and its neighbours saw its estimate go stale
+    # (both in the record). How long it was dead depends on how fast docker starts a container,
+    # so the test asks that the silence is there, not how many ticks it lasted.
+    held = s["faults"]["degraded_ticks"]
+    assert dead_s > SILENT_HOLD_S, f"robot 3 was silent only {dead_s:.2f} s: too short to test the hold"
+    assert held.get("world_held_at_zero", {}).get("3", 0) > 0, held
+    sc = load(SCENARIO)
+    assert sum(held.get("stale_neighbour", {}).get(str(j), 0) for j in sc.neighbours(3)) > 0, held
+    # ... and once back it flew in formation again (judged before the network fault that follows):
+    # it rejoined 5.5-22 m off its slot, 10 s later it was 0.03-0.59 m off (bound 2 m: 3.4 x the
+    # worst; a robot that does not fly back stays metres off), at the end 0.006-0.09 m (0.5 m: 5.7 x).
+    assert err[k, 2] <= 2.0, "closing on its slot before the next fault"
     assert err[-1, 2] <= 0.5
-    assert s["min_object_distance_m"] >= 1.0
+    # Closest to an object: 1.60-1.91 m (mean 1.81, sd 0.10; the repulsive zone is 2 m): 1.2 m is
+    # mean - 6 sd, the worst less 0.4 m; an avoidance that lets a robot 0.8 m into the zone fails.
+    assert s["min_object_distance_m"] >= 1.2
 
 
 @pytest.mark.slow
 def test_docker_network_disconnect_is_seen_as_staleness_and_recovered_from(broken_run):
     p, obs = broken_run
+    assert obs.exit_codes["world"] == 0, p.logs()
     s = p.summary()
     latency = s["sense_to_command"]
     print(f"agent 5 off the network {obs.cut_s:.1f} s from t = {obs.cut_at_t:.2f} s: no command of it "
@@ -420,20 +449,31 @@ def test_docker_network_disconnect_is_seen_as_staleness_and_recovered_from(broke
           f"fresh again at t = {obs.resumed_at_t:.2f} s; the world's worst sensing-to-command "
           f"latency {latency['max_ms']:.0f} ms; degraded ticks {s['faults']['degraded_ticks']}; the world's "
           f"longest silence per robot {s['longest_silence_s']} s")
+    with np.load(p.out / "trajectory.npz") as traj:
+        err = formation_errors({k: traj[k] for k in ("p", "p0", "offsets")})
+    print(f"robot 5 final formation error {err[-1, 4]:.3f} m (worst robot {err[-1].max():.3f} m)")
+    measured("docker-disconnect", load1=os.getloadavg()[0], cut_s=obs.cut_s, silent_wall_s=obs.silent_wall_s,
+             world_silence5_s=s["longest_silence_s"]["5"], gap_before_cut_s=obs.gap_before_cut_s,
+             world_silence_others_s=max(v for r, v in s["longest_silence_s"].items() if r not in ("3", "5")),
+             resumed_after_t_s=obs.resumed_at_t - obs.cut_at_t,
+             stalest_s=obs.stalest_s, err5_final_m=float(err[-1, 4]))
     # Seen: nothing of robot 5 crosses the cut, as a watcher on the router sees it and as the
     # world does: its longest wait for a new command of robot 5 (summary longest_silence_s). What
     # the world did meanwhile varies with where Zenoh's queues fill (held its clock for the deaf
     # robot, or answered its sensing a cut late, or neither stood out), so that is printed only.
+    # Both are floors load only raises (9 runs at load 19-34: 3.3-25 s at the watcher, 3.1-4.0 s at
+    # the world, for a 2.2-4.1 s cut). Loaded, they do not tell the cut from a stall: robot 5's
+    # longest gap before the cut was 8.9-21 s at the watcher and the world's longest silence of an
+    # uncut robot 3.2-5.0 s; only on a quiet machine do they catch a cut that cut nothing.
     assert obs.silent_wall_s >= 0.5 * CUT_S, "no command of robot 5 crosses a cut network"
     assert s["longest_silence_s"]["5"] >= 0.5 * CUT_S, s["longest_silence_s"]
-    # Recovered: never taken for dead (the cut is shorter than the lease), fresh again, the run
-    # completes, and robot 5 ends in formation.
+    # Recovered: never taken for dead (the cut is shorter than the lease), fresh again (broken_run
+    # waits for it), the run completes, and robot 5 ends in formation. How long it took is printed
+    # only: 1.7-24 s of simulation after the cut in those runs (in 2 more, a 55 s run ended
+    # first), too spread to bound.
     assert ("agent/5", False) not in obs.alive_changes, "a cut shorter than the lease is no death"
-    assert obs.resumed_at_t - obs.cut_at_t < CUT_S + 20
-    assert obs.exit_codes["world"] == 0 and s["complete"], p.logs()
-    with np.load(p.out / "trajectory.npz") as traj:
-        err = formation_errors({k: traj[k] for k in ("p", "p0", "offsets")})
-    print(f"robot 5 final formation error {err[-1, 4]:.3f} m (worst robot {err[-1].max():.3f} m)")
+    assert s["complete"], p.logs()
+    # 0.006-0.07 m off its slot at the end in those runs: 0.5 m is 7 x the worst; left behind, metres.
     assert err[-1, 4] <= 0.5
 
 
@@ -442,7 +482,7 @@ def test_docker_network_cut_past_the_lease_the_agent_waits_for_the_world_and_rej
     """Agent 5 off the network until the router has given it up (the Zenoh lease, 10 s), and its
     own session the world: it must wait for the world (it did not end the run), take it back
     when the network does, and fly on; the run completes."""
-    p, watcher = flying_realtime_swarm(project_factory, 45.0)
+    p, watcher = flying_realtime_swarm(project_factory, LEASE_RUN_S)
     try:
         agent5 = p.container("agent-5")
         t0 = time.monotonic()
@@ -462,14 +502,17 @@ def test_docker_network_cut_past_the_lease_the_agent_waits_for_the_world_and_rej
     assert p.wait_exit("world", 240) == 0, p.logs()
     said = [line for line in p.logs().splitlines() if "agent-5" in line and "fxswarm agent 5" in line]
     print(f"agent 5 off the network {cut_s:.1f} s, flying again at t = {back_at_t:.2f} s; it said: {said}")
-    # Cut off, the agent has lost its router (and with it the world): it says so, and that it is back.
-    assert any("lost every router" in line or "lost the world" in line for line in said), said
-    assert any("reached the swarm again" in line or "the world is back" in line for line in said), said
     s = p.summary()
-    assert s["complete"]
     with np.load(p.out / "trajectory.npz") as traj:
         err = formation_errors({k: traj[k] for k in ("p", "p0", "offsets")})
     print(f"robot 5 final formation error {err[-1, 4]:.3f} m (worst robot {err[-1].max():.3f} m)")
-    # Back in formation: 0.15-0.58 m in 3 runs (real time on a loaded machine; with robot 5
-    # left behind, held still while the leader climbs at 1 m/s, it would be metres off).
-    assert err[-1, 4] <= 1.0
+    measured("docker-lease-cut", load1=os.getloadavg()[0], cut_s=cut_s, back_at_t=back_at_t,
+             err5_final_m=float(err[-1, 4]), worst_final_m=float(err[-1].max()))
+    # Cut off, the agent has lost its router (and with it the world): it says so, and that it is back.
+    assert any("lost every router" in line or "lost the world" in line for line in said), said
+    assert any("reached the swarm again" in line or "the world is back" in line for line in said), said
+    assert s["complete"]
+    # Back in formation: 0.008-0.058 m in 7 runs of LEASE_RUN_S at load 18-30 (MEASURED
+    # docker-lease-cut); 0.5 m is 8.6 x the worst. Left behind, held still while the leader climbs
+    # at 1 m/s, it is metres off (3.3 and 31 m in the runs of 45 s that ended before it was back).
+    assert err[-1, 4] <= 0.5
