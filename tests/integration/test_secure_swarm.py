@@ -190,18 +190,23 @@ def test_secure_run_refuses_a_robots_forged_commands_and_keeps_strangers_out(lau
              agent2_sent=summary["processes"]["agent-2"]["sent"],
              moving=np.count_nonzero(np.linalg.norm(v2, axis=1)) / len(v2))
 
-    # The robot-2 key gets in, and says and hears only what robot 2 may.
-    assert r2["connected"] and r2["world_seen"] and r2["world_ticking"] and r2["sent"] > 200, r2
+    # The robot-2 key gets in, and says and hears only what robot 2 may. Its puts (forged commands
+    # and estimates during the run) are bounded by its share of the CPU: 10 runs at load 17-32
+    # (routed and mesh, window from the first tick): sent 114-1114. A plain run lands about 0.2
+    # forged ticks per put (8 runs: 0.20-0.32), so 50 puts would have shown some 10 forged ticks
+    # had the world taken them; an attack that never ran sends 0.
+    assert r2["connected"] and r2["world_seen"] and r2["world_ticking"] and r2["sent"] >= 50, r2
     if mesh:  # its puts went over direct links (to the world, the robots, ...), not through the router
-        assert r2["direct_peers"] >= 6, r2
-    assert r2["heard"].get("world/sense/2", 0) > 50, r2  # its own sensing: allowed
+        assert r2["direct_peers"] >= 6, r2  # 9 in every mesh run measured
+    assert r2["heard"].get("world/sense/2", 0) > 50, r2  # its own sensing, allowed: 141-488 heard
     assert r2["heard"].get("world/sense/1", 0) == 0, r2  # robot 1's: refused
     assert r2["heard"].get("agent/6/cmd", 0) == 0, r2  # no neighbour of robot 2: refused
     assert forged_ticks(traj) == 0, "the world applied a forged command"
     # Robot 2's own messages flowed: the world applied its commands all run long.
-    # 20 runs (11 routed, 9 mesh) at load average 9-29: 0.9925-1.0 of the ticks; a robot whose
-    # messages the rules refused would hold still from 0.5 s on (0.06).
+    # 20 runs (11 routed, 9 mesh) at load average 9-29: 0.9925-1.0 of the ticks (30 more at load
+    # 6-37: 0.9962-1.0); a robot whose messages the rules refused would hold still from 0.5 s on (0.06).
     assert np.count_nonzero(np.linalg.norm(v2, axis=1)) > 0.9 * len(v2)
+    # robot 2's own agent: 787-910 puts in 10 runs at load 17-32
     assert summary["complete"] and summary["processes"]["agent-2"]["sent"] > 100
     # No certificate, or one from another CA: no session at all, so nothing in or out.
     for r in (r0, rx):
@@ -234,7 +239,10 @@ def test_the_same_attack_on_a_plain_run_lands(launch_swarm, mode, tmp_path):
     traj = np.load(swarm.out / "trajectory.npz")
     measured(f"plain-{mode}", load1=os.getloadavg()[0], sent=r2["sent"], forged_ticks=forged_ticks(traj),
              sense1=r2["heard"].get("world/sense/1", 0), cmd6=r2["heard"].get("agent/6/cmd", 0))
-    assert r2["connected"] and r2["world_ticking"] and r2["sent"] > 200, r2
+    # 8 runs (client and peer) at load 22-33: sent 708-1318, forged ticks 142-299 (0.20-0.32 per
+    # put). The puts follow the attacker's share of the CPU (the secure runs': 114 at load 29), so
+    # the bound on them only says the attack ran; the forged ticks say it landed.
+    assert r2["connected"] and r2["world_ticking"] and r2["sent"] >= 50, r2
     assert r2["heard"].get("world/sense/1", 0) > 0 and r2["heard"].get("agent/6/cmd", 0) > 0, r2
     assert forged_ticks(traj) > 20, forged_ticks(traj)
 
