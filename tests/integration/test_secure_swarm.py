@@ -191,11 +191,11 @@ def test_secure_run_refuses_a_robots_forged_commands_and_keeps_strangers_out(lau
              moving=np.count_nonzero(np.linalg.norm(v2, axis=1)) / len(v2))
 
     # The robot-2 key gets in, and says and hears only what robot 2 may. Its puts (forged commands
-    # and estimates during the run) are bounded by its share of the CPU: 10 runs at load 17-32
-    # (routed and mesh, window from the first tick): sent 114-1114. A plain run lands about 0.2
-    # forged ticks per put (8 runs: 0.20-0.32), so 50 puts would have shown some 10 forged ticks
-    # had the world taken them; an attack that never ran sends 0.
-    assert r2["connected"] and r2["world_seen"] and r2["world_ticking"] and r2["sent"] >= 50, r2
+    # and estimates during the run) follow its share of the CPU: 11 runs at load 17-32 (routed and
+    # mesh, window from the first tick): sent 114-1114 (the plain test's attacker: 30 at load 32).
+    # A plain world applies 0.40-0.63 of the forged commands (half the puts), so 20 puts would
+    # have shown some 4 forged ticks had this world taken them; an attack that never ran sends 0.
+    assert r2["connected"] and r2["world_seen"] and r2["world_ticking"] and r2["sent"] >= 20, r2
     if mesh:  # its puts went over direct links (to the world, the robots, ...), not through the router
         assert r2["direct_peers"] >= 6, r2  # 9 in every mesh run measured
     assert r2["heard"].get("world/sense/2", 0) > 50, r2  # its own sensing, allowed: 141-488 heard
@@ -239,12 +239,12 @@ def test_the_same_attack_on_a_plain_run_lands(launch_swarm, mode, tmp_path):
     traj = np.load(swarm.out / "trajectory.npz")
     measured(f"plain-{mode}", load1=os.getloadavg()[0], sent=r2["sent"], forged_ticks=forged_ticks(traj),
              sense1=r2["heard"].get("world/sense/1", 0), cmd6=r2["heard"].get("agent/6/cmd", 0))
-    # 8 runs (client and peer) at load 22-33: sent 708-1318, forged ticks 142-299 (0.20-0.32 per
-    # put). The puts follow the attacker's share of the CPU (the secure runs': 114 at load 29), so
-    # the bound on them only says the attack ran; the forged ticks say it landed.
-    assert r2["connected"] and r2["world_ticking"] and r2["sent"] >= 50, r2
+    # The puts follow the attacker's share of the CPU: 10 runs (client and peer) at load 22-33, sent
+    # 30-1318 (30: a client at load 32). What does not is the share of its forged commands (half its
+    # puts) the world applied: 0.40-0.63 of them (7 of 15 in that run); a secure world applies none.
+    assert r2["connected"] and r2["world_ticking"] and r2["sent"] >= 20, r2
     assert r2["heard"].get("world/sense/1", 0) > 0 and r2["heard"].get("agent/6/cmd", 0) > 0, r2
-    assert forged_ticks(traj) > 20, forged_ticks(traj)
+    assert forged_ticks(traj) >= 0.2 * r2["sent"] / 2, (forged_ticks(traj), r2["sent"])
 
 
 def listening_ports(pid: int) -> set[int]:
