@@ -2,8 +2,9 @@
 
 It opens a Zenoh session (a client of the router, or with ``--mode peer`` a mesh peer that
 meets the swarm at the router and then links to the other peers directly, with no rules of
-its own), with the TLS section ``--tls`` (a stolen robot's key, one of another CA, or none), waits on liveliness for the world, then for
-``--seconds`` (or until the world ends the run) puts forged ``Command``s, each
+its own), with the TLS section ``--tls`` (a stolen robot's key, one of another CA, or none), waits on liveliness for the world,
+then for the world's first message (its clock runs), then for ``--seconds`` from there (or until
+the world ends the run) puts forged ``Command``s, each
 carrying a forged estimate for the victim's neighbours, and forged ``Estimate``s
 alone, on ``agent/<victim>/cmd`` at ``--rate`` Hz, time-stamped with the world's
 latest time so they look fresh, while it listens on its own sensing (allowed to
@@ -65,6 +66,7 @@ def main() -> int:
     report["connected"] = True
     latest = {"tick": 0, "t": 0.0}
     world_up = threading.Event()
+    ticking = threading.Event()  # a message of the world heard: its clock runs
     over = threading.Event()
     lock = threading.Lock()
 
@@ -78,6 +80,7 @@ def main() -> int:
             return
         if msg.t > latest["t"]:
             latest.update(tick=msg.tick, t=msg.t)
+        ticking.set()
 
     def on_alive(sample) -> None:
         key = str(sample.key_expr)
@@ -98,6 +101,10 @@ def main() -> int:
             if a.ready:
                 with open(a.ready, "w") as f:
                     f.write("seen the world\n")
+            # The window starts with the run, not at the world's token: a world held by --wait-for
+            # may start seconds later on a loaded machine (at load 31 a 5 s window then overlapped
+            # about 2 s of the 8 s run: 44 puts, robot 2's sensing heard 181 times of 800).
+            report["world_ticking"] = ticking.wait(a.wait)
             end = time.monotonic() + a.seconds
             seq = 0
             while time.monotonic() < end and not over.is_set():
