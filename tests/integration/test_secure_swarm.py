@@ -61,20 +61,25 @@ def attacker(swarm, tls: dict | None, seconds: float = 5.0, wait: float = 60.0,
     return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def start_when_ready(swarm, keys: Path | None, ready: Path, proc: subprocess.Popen, timeout: float = 120.0):
-    """Once ``proc`` (an attacker) has written ``ready``, declare ``observer/0``, which the world's
-    clock waits for; returns that observer session (close it once the world has what it needs from
-    it: while it is there, the world serves its record after the run, up to 60 s). ``keys``: the
-    secure run's keys folder, None for a plain run."""
-    from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions
-
+def wait_until_ready(ready: Path, proc: subprocess.Popen, idle, timeout: float = 120.0) -> None:
+    """Wait until ``proc`` (an attacker) has written ``ready`` (it has seen the world), calling
+    ``idle()`` between looks (a short sleep or pump); fails if it ends first or takes ``timeout``."""
     end = time.monotonic() + timeout
     while not ready.exists():
         assert proc.poll() is None, f"the attacker ended before it saw the world: {report(proc)}"
         assert time.monotonic() < end, f"the attacker did not see the world in {timeout:g} s"
-        time.sleep(0.05)
+        idle()
+
+
+def start_when_ready(swarm, keys: Path, ready: Path, proc: subprocess.Popen):
+    """Once ``proc`` (an attacker) has written ``ready``, declare ``observer/0``, which the world's
+    clock waits for; returns that observer session (close it once the world has what it needs from
+    it: while it is there, the world serves its record after the run, up to 60 s)."""
+    from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions
+
+    wait_until_ready(ready, proc, lambda: time.sleep(0.05))
     gate = ZenohBus(swarm.swarm.swarm, ZenohOptions("client", (swarm.swarm.endpoint,), (), False,
-                                                    tls=files_for(keys, "observer") if keys else None))
+                                                    tls=files_for(keys, "observer")))
     gate.declare_alive("observer", 0)
     return gate
 
@@ -227,11 +232,7 @@ def test_the_same_attack_on_a_plain_run_lands(launch_swarm, mode, tmp_path):
                          world_args=("--wait-for", "test-gate/0"))
     ready = tmp_path / "attacker-ready"
     robot2 = attacker(swarm, None, mode=mode, ready=ready)
-    end = time.monotonic() + 120
-    while not ready.exists():
-        assert robot2.poll() is None, f"the attacker ended before it saw the world: {report(robot2)}"
-        assert time.monotonic() < end, "the attacker did not see the world in 120 s"
-        swarm.pump(0.05)
+    wait_until_ready(ready, robot2, lambda: swarm.pump(0.05))
     assert swarm.sim_time() < 0, "the world ticked before the gate opened"
     swarm.swarm.bus.declare_alive("test-gate", 0)
     swarm.wait_done(timeout=180)
