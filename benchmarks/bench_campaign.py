@@ -7,9 +7,9 @@ divided by the workers (the floor a perfect pool would reach).
 A (campaign): ``fxswarm campaign configs/paper-fast.toml`` as a user runs it (a fresh process
 and a fresh folder: planning, worker start-up, each run appended to runs.jsonl), over
 loss 0,0.2,0.4,0.6 x laws fixed-time,asymptotic x N seeds (8 N runs: 16 and 72, the size of
-docs/campaigns.md's campaign), ``--grid scenario.duration=D``. B (floor): the same 16 runs one after the other in this process
-(:func:`fxswarm.study.campaign.run_case`, what a worker calls), their times summed and divided
-by the workers. Interleaved A B A B per worker count; overhead = A / B - 1. On a shared machine
+docs/campaigns.md's campaign), ``--grid scenario.duration=D``. B (floor): the same runs one
+after the other in this process (:func:`fxswarm.study.campaign.run_case`, what a worker calls),
+their times summed and divided by the workers. Interleaved A B A B per worker count; overhead = A / B - 1. On a shared machine
 two workers also slow each other (the floor assumes perfect scaling): ``in_campaign_runs_s`` is
 the sum of the runs' own times inside the campaign, divided by the workers, to tell the pool's
 cost from the machine's. ``extra_s`` = A - B: a fixed cost (process and pool start-up, the

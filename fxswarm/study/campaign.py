@@ -160,7 +160,7 @@ def main(args: argparse.Namespace) -> int:
     from fxswarm.runtime.config import load_or_exit
 
     base = load_or_exit(args.config)
-    if args.executor == "local" and (args.workers or os.cpu_count() or 1) > 1:
+    if args.executor == "local" and local_workers(args) > 1:
         # The workers' fork server imports what a run needs while this process plans the runs.
         start_workers_early([__name__, "fxswarm.launch.sim"])
     criteria = Criteria(min_distance_m=args.min_distance or base.d / 2, settle_within_s=args.settle_within,
@@ -194,7 +194,7 @@ def main(args: argparse.Namespace) -> int:
 def run_campaign(plan: Plan, out: Path, records: dict[str, dict], args: argparse.Namespace) -> int:
     """Run the runs not in ``records`` yet, appending each to ``runs.jsonl`` (and ``records``)."""
     todo = [r for r in plan.runs if r.id not in records]
-    workers = args.workers or os.cpu_count() or 1
+    workers = local_workers(args)
     where = args.executor if args.executor != "local" else f"{min(workers, max(len(todo), 1))} local workers"
     say = (lambda *a: None) if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
     say(f"fxswarm campaign: {len(plan.runs)} runs ({len(plan.laws)} laws x {len(plan.runs) // len(plan.laws)} "
@@ -231,6 +231,11 @@ def run_campaign(plan: Plan, out: Path, records: dict[str, dict], args: argparse
     finally:
         log.close()
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def local_workers(args: argparse.Namespace) -> int:
+    """``--workers``, else the machine's cores."""
+    return args.workers or os.cpu_count() or 1
 
 
 def _interrupted(signum, frame) -> None:

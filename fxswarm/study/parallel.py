@@ -7,8 +7,8 @@ import multiprocessing
 import multiprocessing.connection
 import os
 import shutil
-import tempfile
 import signal
+import tempfile
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
