@@ -20,7 +20,7 @@ import pytest
 from fxswarm.launch.launcher import free_port
 from fxswarm.testing import scenario_with
 
-from support import PAPER_FAST, fxswarm_command
+from support import PAPER_FAST, REPO, fxswarm_command
 
 
 def children_of(pid: int) -> dict[int, str]:
@@ -343,3 +343,20 @@ def test_quiet_hides_the_chatter_but_not_an_interruption(tmp_path):
         if launcher.poll() is None:
             os.killpg(launcher.pid, signal.SIGKILL)
             launcher.wait()
+
+
+@pytest.mark.zenoh
+def test_the_liveliness_benchmark_sees_a_killed_and_a_frozen_subject_go(tmp_path):
+    """benchmarks/bench_liveliness.py, which holds the "seen gone at once, not by the lease"
+    timing the docker rejoin test prints only, runs against a real router: every case's token is
+    seen to go (a subject the watcher never sees go fails the script), a frozen one only by its lease."""
+    out = tmp_path / "liveliness.json"
+    done = subprocess.run([sys.executable, str(REPO / "benchmarks" / "bench_liveliness.py"), "--rounds", "1",
+                           "--lease-ms", "3000", "--out", out], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    runs = json.loads(out.read_text())["runs_s"]
+    assert sorted(runs) == ["frozen_s", "killed_s", "left_s"] and all(len(v) == 1 and v[0] > 0 for v in runs.values())
+    # Nothing closes a frozen session: the router drops it a lease after the last keep-alive it
+    # heard, and Zenoh sends one every quarter lease, so 0.75-1 lease after the freeze (0.99 s of
+    # a 1 s lease seen); half a lease tells that from a subject killed instead of frozen.
+    assert runs["frozen_s"][0] >= 1.5
