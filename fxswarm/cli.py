@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
+import signal
 import sys
 
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -55,6 +56,11 @@ def main(argv: list[str] | None = None) -> int:
         if name == chosen:  # import only the command that runs: `sim` never loads Zenoh or Rerun
             importlib.import_module(module_name).add_arguments(sub_parser)
     args = parser.parse_args(argv)
+    # Started as `cmd &` by a script, a command inherits SIGINT ignored, so Python installs no
+    # KeyboardInterrupt and `kill -INT` does nothing (attach, campaign); Ctrl-C at a terminal
+    # never reaches a background job anyway, so hearing it costs nothing there.
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     module = importlib.import_module(COMMANDS[args.command][0])
     try:
         return int(module.main(args) or 0)
