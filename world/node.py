@@ -404,6 +404,53 @@ class TickTimer:
         return self.world.ask_again()
 
 
+class RestartHold:
+    """Lock-step under ``fxswarm run``: a robot's planned restart (``[[faults.processes]]`` kill
+    with ``restart``) lands at its tick, as in ``fxswarm sim``, not whenever its new process is up.
+
+    The launcher restarts a process once the world's published state has passed the restart
+    time, and a new process takes seconds of wall time to come up (8 s at load 20), during which
+    a lock-step world used to tick on without it. So the world holds the first tick after that
+    state until the robot's token has come up once more than at the start for each restart due
+    (``ups``: :attr:`fxswarm.runtime.liveness.Liveness.ups`), at most ``limit_s`` s each; then it
+    asks again for that tick, so the new process hears it. A token that went and came back with
+    a router outage counts as up too: that restart then goes unheld, as before.
+    """
+
+    def __init__(self, plan_processes, ups: dict[str, int], dt: float, clock: WallClock, limit_s: float) -> None:
+        self.ups, self.dt, self.clock, self.limit_s = ups, dt, clock, limit_s
+        due: list[tuple[float, str, int]] = []
+        count: dict[str, int] = {}
+        for f in sorted((f for f in plan_processes if f.action == "kill" and f.restart is not None
+                         and f.target.startswith("agent:")), key=lambda f: f.restart):
+            name = "agent/" + f.target.split(":", 1)[1]
+            count[name] = count.get(name, 0) + 1
+            due.append((f.restart, name, 1 + count[name]))  # ups needed: the first start and each restart
+        self.pending = due
+        self.since: Deadline | None = None  # holding for pending[0] since
+        self.given_up: list[str] = []
+
+    def check(self, tick: int) -> tuple[bool, list[str]]:
+        """At the current ``tick`` (whose previous state the launcher has seen): (hold it?,
+        robots whose restart has just come up: ask again for this tick)."""
+        published_t = (tick - 1) * self.dt
+        back: list[str] = []
+        while self.pending and self.pending[0][0] <= published_t + 1e-9:
+            _, name, needed = self.pending[0]
+            if self.ups.get(name, 0) >= needed:
+                back.append(name)
+            elif self.since is None:
+                self.since = Deadline(self.limit_s, self.clock)
+                return True, back
+            elif not self.since.passed():
+                return True, back
+            else:
+                self.given_up.append(name)
+            self.pending.pop(0)
+            self.since = None
+        return False, back
+
+
 class RealTimeWorld:
     """Real time: the world ticks every ``period`` s of ``clock`` on the latest command of each
     robot (zero-order hold), and measures the latency from each sensing to its command.

@@ -45,7 +45,7 @@ from fxswarm.runtime.record import Record, RecordServer
 from fxswarm.runtime.process import RoleProcess, add_process_arguments, run_periodic_loop, wrap_node
 from fxswarm.runtime.config import load_or_exit
 from fxswarm.runtime.zenoh_bus import wait_until
-from fxswarm.world.node import RealTimeWorld, TickTimer, WorldNode
+from fxswarm.world.node import RealTimeWorld, RestartHold, TickTimer, WorldNode
 
 #: Exit status of a world that heard none of its robots at the end of its run.
 ALONE_EXIT = 1
@@ -64,6 +64,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--wait-for", action="append", default=[], metavar="ROLE/ID",
                    help="also wait for this process's liveliness before the clock starts (repeatable), e.g. "
                         "logger/0 where no orchestrator orders the start, or observer/0 for `fxswarm attach`")
+    p.add_argument("--hold-restarts", action="store_true",
+                   help="lock-step: hold the tick of each planned restart ([[faults.processes]]) until the robot's "
+                        "new process is up, so it lands at its time as in `fxswarm sim` (`fxswarm run` sets it: "
+                        "its launcher does the restarts)")
     p.add_argument("--ros2", action="store_true",
                    help="a gateway to ROS 2 robots instead of the simulation (real time; needs fxswarm[ros2]; "
                         "the scenario's [ros2] table, ROS_DOMAIN_ID and CYCLONEDDS_URI; docs/ros2.md)")
@@ -160,13 +164,16 @@ def wait_for_everyone(proc: RoleProcess, timeout: float, also: tuple[str, ...] =
     return [n for n in needed if n not in proc.alive]
 
 
-def run_lockstep(proc: RoleProcess, tick_timeout: float) -> int:
+def run_lockstep(proc: RoleProcess, tick_timeout: float, hold_restarts: bool = False) -> int:
     """The tick protocol runs in the handlers; this loop only wakes for the tick's deadline
     and departures (:class:`~fxswarm.world.node.TickTimer` decides; 0.1 s late at most to
-    see a new tick: a deadline is never early)."""
+    see a new tick: a deadline is never early). ``hold_restarts``: a planned restart is waited
+    for at its tick (:class:`~fxswarm.world.node.RestartHold`)."""
     world: WorldNode = proc.core
     proc.publish(world.start())
     timer = TickTimer(world, tick_timeout, proc.wall_clock, REJOIN_S)  # tick 0's deadline starts now
+    restarts = RestartHold(proc.plan.processes, proc.liveness.ups, proc.sc.dt, proc.wall_clock, REJOIN_S) \
+        if hold_restarts else None
     outages = proc.rejoined
     while not world.done and not proc.stopping:
         proc.bus.poll(min(0.1, timer.wait_s()), stay=not proc.gone)
@@ -176,7 +183,16 @@ def run_lockstep(proc: RoleProcess, tick_timeout: float) -> int:
         if proc.rejoined != outages:  # a router outage is over: whatever it swallowed is asked for again
             outages = proc.rejoined
             proc.publish(timer.ask_again())
-        proc.publish(timer.check(gone_robots(proc), unsure=bool(proc.unsure())))
+        holding = False
+        if restarts is not None and restarts.pending:
+            holding, back = restarts.check(world.tick)
+            if back:  # the new process came up after this tick was sent: it hears it now
+                proc.publish(timer.ask_again())
+            for name in restarts.given_up:
+                print(f"fxswarm world: {name}'s planned restart not up within {REJOIN_S:g} s: going on without it",
+                      file=sys.stderr)
+            restarts.given_up.clear()
+        proc.publish(timer.check(gone_robots(proc), unsure=holding or bool(proc.unsure())))
     return timer.asked
 
 
@@ -261,7 +277,7 @@ def main(args: argparse.Namespace) -> int:
         started = time.perf_counter()
         extra["waited_s"] = started - start
         if proc.lockstep:
-            extra["asked_again"] = run_lockstep(proc, args.tick_timeout)
+            extra["asked_again"] = run_lockstep(proc, args.tick_timeout, args.hold_restarts)
         else:
             extra.update(run_realtime(proc, unwrap_realtime(node), link))
         world: WorldNode = proc.core

@@ -343,6 +343,8 @@ class Swarm:
             out.append(Child(f"agent-{r.id}", "agent", r.id, self._role_argv("agent", ["--id", str(r.id)], r.id),
                              logs / f"agent-{r.id}.log"))
         world_extra = ["--tick-timeout", repr(self.tick_timeout), *self.world_args]
+        if self.clock == "lockstep" and any(f.restart is not None for f in self.plan.processes):
+            world_extra.append("--hold-restarts")  # this launcher does the restarts: at their ticks
         out.append(Child("world", "world", 0, self._role_argv("world", world_extra), logs / "world.log"))
         return out
 

@@ -33,6 +33,7 @@ class Liveness:
         self.routers: set[str] = set()  # routers up now (their tokens, this process's links)
         self.router_lost_at = -float("inf")  # when a router last went
         self.rejoined = 0  # outages over: everyone who went with a router is back (or judged gone)
+        self.ups: dict[str, int] = {}  # times each token came up (a restarted process: once more)
 
     def change(self, name: str, up: bool) -> None:
         """A token (or, ``router/...``, a router) came up or went."""
@@ -49,6 +50,8 @@ class Liveness:
                     self.rejoining[other] = when
             return
         if up:
+            if name not in self.alive:
+                self.ups[name] = self.ups.get(name, 0) + 1
             self.alive.add(name)
             self.gone.discard(name)
             self.departed.pop(name, None)
