@@ -60,14 +60,18 @@ def test_paper_fast_in_real_time_at_speed_4_meets_the_paper_outcome(launch_swarm
                                          "formation_error_final_m", "estimate_error_final_m",
                                          "min_object_distance_m")}
     print(f"speed 4 at load average {os.getloadavg()[0]:.1f}: {detail}")
-    measured("speed4", load1=os.getloadavg()[0], **{k: summary[k] for k in BOUNDED})
+    end_err = formation_error_at_the_end(swarm.out)
+    measured("speed4", load1=os.getloadavg()[0], formation_error_last_2s_m=end_err,
+             **{k: summary[k] for k in BOUNDED})
     # Bounds from 26 runs on this 2-core machine at load average 9-156 (other test runs beside),
     # each at mean -/+ 4 sd: closest approach 1.77-1.97 m (mean 1.88, sd 0.058; lock-step 1.98)
-    # against 1.65; final formation error 0.017-0.292 m (mean 0.091, sd 0.070) against 0.37, which
-    # 8 runs of 9 without the compensation missed (0.43-0.62, above); estimate error 0.02-0.14 m
-    # (mean 0.058, sd 0.027) against 0.25.
+    # against 1.65; estimate error 0.02-0.14 m (mean 0.058, sd 0.027) against 0.25.
+    # The formation over the last 2 s (formation_error_at_the_end): 0.020-0.117 m in 7 runs at
+    # load 21-35 with the compensation, 0.40-0.59 m in 4 runs at load 20-22 without it; 0.25
+    # between. The last tick's error no longer told the two apart: 0.05-0.41 m with (0.41 once
+    # at load 35, against 0.37 asserted then), 0.37-0.60 m without.
     assert summary["min_object_distance_m"] >= 1.65, detail
-    assert summary["formation_error_final_m"] <= 0.37, detail
+    assert end_err <= 0.25, (end_err, detail)
     assert summary["estimate_error_final_m"] <= 0.25, detail
 
 
@@ -91,6 +95,8 @@ def test_paper_fast_in_real_time_meets_the_real_time_outcome_on_a_loaded_machine
     # The formation is judged over the run's last 2 s, not at its last tick: at load 20 (two other
     # swarms running) a 0.65 s stall in the last half second left robot 3 0.38 m off at the last
     # tick, 0.02 m off one second before; a swarm that does not hold formation is off all along.
+    # Over the last 2 s: 0.017-0.048 m in 14 runs at load 15-52 (MEASURED speed1; the last tick
+    # 0.018-0.38 m in the same runs); 0.25 is 5 x the worst.
     assert summary["min_object_distance_m"] >= 1.8, detail
     assert end_err <= 0.25, (end_err, detail)
     assert summary["estimate_error_final_m"] <= 0.25, detail
