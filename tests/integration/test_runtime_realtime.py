@@ -15,15 +15,15 @@ from support import PAPER_FAST, measured
 #: The figures the paper-outcome tests bound (and print, ``MEASURED``, for their distribution).
 BOUNDED = ("min_object_distance_m", "formation_error_final_m", "estimate_error_final_m", "achieved_speed")
 
+SPEED_ALWAYS = 1.0  # real time at 100 ticks/s: holds with one swarm on the machine (not two at once)
+
+
 def formation_error_at_the_end(out, last_s: float = 2.0) -> float:
     """The worst robot's median formation error over the run's last ``last_s`` s: a stall of
     less than ``last_s / 2`` at the end, which a loaded machine has, does not move it."""
     traj = load_trajectory(out)
     err = formation_errors(traj)
     return float(np.median(err[traj["t"] >= traj["t"][-1] - last_s], axis=0).max())
-
-
-SPEED_ALWAYS = 1.0  # real time at 100 ticks/s: holds with one swarm on the machine (not two at once)
 
 
 @pytest.mark.zenoh
