@@ -21,8 +21,8 @@ import numpy as np
 
 from fxswarm.agents.links import InLinks
 from fxswarm.core import bus as topics
-from fxswarm.core.control import in_repulsive_zone, speed_limited
-from fxswarm.core.laws import LawView, checked_vector, describe_failure, make_law, resolve_law
+from fxswarm.core.control import in_repulsive_zone
+from fxswarm.core.laws import LawView, checked_vector, describe_failure, limit_speed, make_law, resolve_law
 from fxswarm.core.messages import Command, Estimate, LeaderState, Message, Sense
 from fxswarm.core.observer import observer_weights, velocity_observer_rate
 from fxswarm.core.scenario import Scenario
@@ -363,7 +363,7 @@ class AgentNode:
                 self.law_error_first = law_error
         limited = False
         if self.sc.v_max is not None:  # not in the paper: [scenario] v_max, for every law alike
-            v, limited = speed_limited(v, self.sc.v_max)
+            v, limited = limit_speed(v, self.sc.v_max)
         avoid_active = po is not None and in_repulsive_zone(p, po, self.sc.d)
         flags = self._degraded_flags(stale_neighbour, no_leader, hears, now, law_error is not None)
         if hears:

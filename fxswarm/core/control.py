@@ -12,9 +12,11 @@ numpy call costs ~1 us, more than the arithmetic itself, and this is the
 agent's per-tick hot path. Sums run left to right in a fixed order, so a
 trajectory does not depend on the machine's BLAS (docs/design.md
 "Bit for bit: the law stays out of BLAS").
-No I/O, no clocks, no globals. :func:`robot_control` is the law; the other
-functions are its parts. ``tests/oracle.py`` holds a plain numpy transcription
-of the same equations that the tests check this one against.
+No I/O, no clocks, no globals. These are the law's parts; the law the robots fly is
+``fxswarm.core.paper_law`` (:class:`~fxswarm.core.paper_law.BehaviouralLaw`, and
+:func:`~fxswarm.core.paper_law.robot_control`, one robot's step through it).
+``tests/oracle.py`` holds a plain numpy transcription of the same equations that the tests
+check that one against.
 """
 
 from __future__ import annotations
@@ -108,58 +110,11 @@ def task_rate(x: float, g: BehaviourGains) -> float:
     return g.lam * (g.b1 * x**g.r1 + g.b2 * x**g.r2) ** g.r0
 
 
-def robot_control(
-    p: Vec,
-    ph: Vec,
-    rows: Sequence[Vec],
-    ws: Sequence[float],
-    p0: Vec,
-    dp0: Vec,
-    po: Vec | None,
-    vo: Vec | None,
-    law: ControlParameters,
-    dt: float,
-    dph: Vec | None = None,
-    feedforward: Vec | None = None,
-) -> ControlOutput:
-    """One robot's whole law from local data only: eqs. (11), (v2), (v1), (v).
-
-    p: the robot's position, m. ph: its estimate of the leader, m.
-    rows: the estimates it holds, shape (m, 3) (the leader's position as one more
-    row when pinned and heard), with their weights ``ws`` (``a_ij``, ``b_i``), (m,).
-    p0, dp0: its formation offset and the offset's rate (m, m/s).
-    po, vo: the nearest object's position and velocity (None when it senses
-    nothing); the avoidance task is on only inside the repulsive zone of radius
-    ``law.d`` (SPEC section 4). dt: the step, s (used by the semi-implicit step).
-    dph: the estimate's rate if already known (extrapolating: it hears nobody);
-    None: from eq. (11).
-    feedforward: the observed leader velocity ``vh`` (m/s; ``[estimator] tracking =
-    "feedforward"``, fxswarm.core.observer), added to the eq. (11) rate the law computes:
-    eq. (11ff). A given ``dph`` is the whole rate and gets nothing added. Under explicit
-    Euler the formation behaviour then follows ``vh`` instead of that rate, eq. (v2ff):
-    eq. (11)'s part of the rate is a consensus correction that, once the estimate has
-    settled, is only the sign term's +-K3 per-axis chatter (docs/estimator.md).
-
-    Explicit Euler (SPEC section 7): ``dph`` is eq. (11)'s rate and ``v`` eq. (v2) (with
-    feedforward: eqs. (11ff) and (v2ff)).
-    Semi-implicit: the estimator and the formation behaviour take the semi-implicit
-    step (:func:`estimator_step_semi_implicit`, :func:`formation_velocity_semi_implicit`);
-    ``dph`` is the step's mean rate, so that ``ph + dt*dph`` is the implicit solution.
-    """
-    reference = None  # with feedforward under explicit Euler: the velocity eq. (v2ff) follows
-    if dph is None:
-        dph = estimator_rate_step(ph, rows, ws, law, dt, feedforward)
-        if feedforward is not None and not law.semi_implicit:
-            reference = feedforward  # eq. (v2ff): the chatter stays out of the robot's velocity
-    v, e, active = behaviour_velocity(p, ph, dph, reference, p0, dp0, po, vo, law, dt)
-    v, limited = speed_limited(v, law.v_max)
-    return ControlOutput(v, list(dph), e, active, limited)
-
-
 def estimator_rate_step(ph: Vec, rows: Sequence[Vec], ws: Sequence[float], law: ControlParameters, dt: float,
                         feedforward: Vec | None = None) -> list[float]:
     """The estimate's rate over one step, m/s: eq. (11) (with ``feedforward``, eq. (11ff)), or
-    under ``law.semi_implicit`` the semi-implicit step's mean rate. Arguments as :func:`robot_control`."""
+    under ``law.semi_implicit`` the semi-implicit step's mean rate. Arguments as
+    :func:`fxswarm.core.paper_law.robot_control`."""
     if law.semi_implicit:
         start, held = ph, rows
         if feedforward is not None:  # eq. (11ff): eq. (11)'s implicit step in the frame moving at vh,
@@ -179,7 +134,8 @@ def behaviour_velocity(p: Vec, ph: Vec, dph: Vec, reference: Vec | None, p0: Vec
                        vo: Vec | None, law: ControlParameters, dt: float) -> tuple[list[float], list[float], bool]:
     """``(v, e, avoid_active)``: the formation behaviour, eq. (v2) (following ``reference``
     instead of ``dph`` when given: eq. (v2ff)), merged with the avoidance behaviour inside the
-    repulsive zone, eqs. (v1), (v). No speed limit. Arguments as :func:`robot_control`."""
+    repulsive zone, eqs. (v1), (v). No speed limit. Arguments as
+    :func:`fxswarm.core.paper_law.robot_control`."""
     e = [p[0] - ph[0] - p0[0], p[1] - ph[1] - p0[1], p[2] - ph[2] - p0[2]]  # eq. (ctbf)
     if law.semi_implicit:
         v = formation_velocity_semi_implicit(e, dph, dp0, law.formation, dt)

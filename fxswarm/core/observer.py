@@ -21,7 +21,7 @@ and feeds it forward in the position estimator:
     dph_i/dt = (eq. (11)'s rate) + vh_i                                 eq. (11ff)
 
 and, under explicit Euler, in the formation behaviour in place of ``dph_i/dt``: eq. (v2ff)
-(fxswarm.core.control.robot_control), since eq. (11)'s part of the rate is then only its
+(fxswarm.core.paper_law.robot_control), since eq. (11)'s part of the rate is then only its
 sign term's chatter.
 
 Conditions (docs/estimator.md): ``L1, L2, L3 > 0``, the exponents of eq. (11)

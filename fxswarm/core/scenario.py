@@ -21,9 +21,8 @@ import numpy as np
 from fxswarm.core import motion
 from fxswarm.core.bus import SWARM_NAME_RULE, is_swarm_name
 from fxswarm.core.control import BehaviourGains, EstimatorGains
-from fxswarm.core.laws import (
-    BUILTIN_LAWS, FAMILIES, LawError, builtin_name, family_gains, make_law, resolve_law, split_builtin,
-)
+from fxswarm.core.laws import LawError, make_law, resolve_law
+from fxswarm.core.paper_law import BUILTIN_LAWS, FAMILIES, builtin_name, family_gains, split_builtin
 from fxswarm.core.observer import DEFAULT_OBSERVER_GAINS, OBSERVER_GRAPHS, TRACKINGS, max_acceleration_inf
 from fxswarm.core.graph import TOPOLOGIES, adjacency, h_matrix, topology_edges, unreached_robots
 

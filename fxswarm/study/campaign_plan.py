@@ -20,7 +20,7 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from fxswarm.core.laws import BUILTIN_LAWS
+from fxswarm.core.paper_law import BUILTIN_LAWS
 from fxswarm.core.scenario import Scenario, ScenarioError, ScenarioWarning, parse
 from fxswarm.core.tomltext import dump_toml
 from fxswarm.faults.plan import resolve

@@ -29,10 +29,10 @@ import copy
 
 import numpy as np
 
-# The sweep's names for the built-in laws (fxswarm.core.laws): one list, one split, one derivation.
-from fxswarm.core.laws import BUILTIN_LAWS as SWEEP_VARIANTS
-from fxswarm.core.laws import FEEDFORWARD_SUFFIX, FINITE_TIME_TOP_EXPONENT, variant_gains  # noqa: F401
-from fxswarm.core.laws import split_builtin as split_variant
+# The sweep's names for the built-in laws (fxswarm.core.paper_law): one list, one split, one derivation.
+from fxswarm.core.paper_law import BUILTIN_LAWS as SWEEP_VARIANTS
+from fxswarm.core.paper_law import FEEDFORWARD_SUFFIX, FINITE_TIME_TOP_EXPONENT, variant_gains  # noqa: F401
+from fxswarm.core.paper_law import split_builtin as split_variant
 from fxswarm.core.scenario import VARIANTS, Scenario, parse
 
 #: The repulsive radius (m) that switches the avoidance behaviour off in practice: two robots

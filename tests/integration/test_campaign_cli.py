@@ -233,7 +233,7 @@ STILL = """
 class Still:
     \"\"\"A user's law that holds its robot still.\"\"\"
 
-    def __init__(self, params, robot_id):
+    def __init__(self, params, robot_id, scenario):
         pass
 
     def estimate_rate(self, view):

@@ -207,7 +207,7 @@ LAW = '''
 class Raising:
     """A user's law that raises once the run is under way."""
 
-    def __init__(self, params, robot_id):
+    def __init__(self, params, robot_id, scenario):
         self.robot_id = robot_id
 
     def estimate_rate(self, view):

@@ -12,7 +12,7 @@ from hypothesis import assume, event, given, settings
 from hypothesis import strategies as st
 
 import oracle
-from fxswarm.core import control
+from fxswarm.core import control, paper_law
 from fxswarm.core.control import BehaviourGains, ControlParameters, EstimatorGains
 
 FORMATION = BehaviourGains(lam=1.0, b1=0.6, b2=0.6, r0=0.9, r1=1.2, r2=0.6)
@@ -60,7 +60,7 @@ def close(a, b, scale: float) -> bool:
 def test_the_law_equals_the_oracle(x):
     want = oracle.robot_control(**x)
     assume(want.margin > 1e-6)  # not within rounding of a switch
-    got = control.robot_control(**x)
+    got = paper_law.robot_control(**x)
     event("semi-implicit" if x["law"].semi_implicit else "explicit Euler")
     event(f"avoiding={want.avoid_active} speed_limited={want.speed_limited} extrapolating={x['dph'] is not None}")
     event(f"feedforward={x['feedforward'] is not None}")
@@ -80,8 +80,8 @@ def test_the_oracle_catches_a_wrong_law(semi):
     args = dict(p=[1.0, 2.0, 3.0], ph=[0.5, -1.0, 2.0], rows=[[3.0, 1.0, -2.0], [-1.0, 0.0, 4.0]], ws=[1.0, 0.5],
                 p0=[0.0, 1.0, 0.0], dp0=[0.1, 0.0, 0.0], po=None, vo=None, dt=0.01)
     want = oracle.robot_control(law=law, **args)
-    assert close(control.robot_control(law=law, **args).dph, want.dph, 100.0)
-    assert not close(control.robot_control(law=wrong, **args).dph, want.dph, 100.0)
+    assert close(paper_law.robot_control(law=law, **args).dph, want.dph, 100.0)
+    assert not close(paper_law.robot_control(law=wrong, **args).dph, want.dph, 100.0)
 
 
 def test_semi_implicit_snaps_to_consensus_in_both():
@@ -89,7 +89,7 @@ def test_semi_implicit_snaps_to_consensus_in_both():
     law = ControlParameters(FORMATION, AVOIDANCE, PAIRWISE, 2.0, semi_implicit=True)
     args = dict(p=[0.0, 0.0, 0.0], ph=[1.0, 1.0, 1.0], rows=[[1.004, 1.0, 0.998]], ws=[1.0],
                 p0=[0.0, 0.0, 0.0], dp0=[0.0, 0.0, 0.0], po=None, vo=None, dt=0.01)
-    got, want = control.robot_control(law=law, **args), oracle.robot_control(law=law, **args)
+    got, want = paper_law.robot_control(law=law, **args), oracle.robot_control(law=law, **args)
     ph_next = [x + 0.01 * r for x, r in zip(args["ph"], got.dph)]
     assert ph_next == pytest.approx([1.004, 1.0, 0.998], abs=1e-15)
     assert close(got.dph, want.dph, 100.0)

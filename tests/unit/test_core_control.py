@@ -16,9 +16,9 @@ from fxswarm.core.control import (
     estimator_rate,
     formation_velocity,
     merged_velocity,
-    robot_control,
     task_rate,
 )
+from fxswarm.core.paper_law import robot_control
 from oracle import sig
 
 PAPER = BehaviourGains(lam=1.0, b1=0.6, b2=0.6, r0=0.9, r1=1.2, r2=0.6)

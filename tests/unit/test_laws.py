@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fxswarm.core.laws import BUILTIN_LAWS, BehaviouralLaw, LawError, registered_laws, resolve_law
+from fxswarm.core.laws import LawError, registered_laws, resolve_law
+from fxswarm.core.paper_law import BUILTIN_LAWS, BehaviouralLaw
 from fxswarm.core.scenario import ScenarioError, load, parse
 from fxswarm.launch.sim import Simulation
 from fxswarm.study.variants import variant_toml
@@ -122,7 +123,7 @@ def test_the_builtins_are_registered_entry_points_of_one_class():
     registered = registered_laws()
     for name in BUILTIN_LAWS:
         assert resolve_law(name) is BehaviouralLaw, name
-        assert registered[name] == "fxswarm.core.laws:BehaviouralLaw"
+        assert registered[name] == "fxswarm.core.paper_law:BehaviouralLaw"
 
 
 def run(sc) -> dict:
@@ -163,8 +164,8 @@ def test_a_builtin_name_conflicting_with_the_legacy_keys_is_refused():
 
 # --- refused before anything starts ---------------------------------------------------------------
 
-NO_METHOD = "class Half:\n    def __init__(self, params, robot_id): pass\n    def velocity(self, view, r): return r\n"
-RAISING_INIT = ("class Picky:\n    def __init__(self, params, robot_id):\n"
+NO_METHOD = "class Half:\n    def __init__(self, params, robot_id, scenario): pass\n    def velocity(self, view, r): return r\n"
+RAISING_INIT = ("class Picky:\n    def __init__(self, params, robot_id, scenario):\n"
                 "        if params.get('kf', 0) <= 0: raise ValueError(f'kf must be > 0, got {params.get(\"kf\")}')\n"
                 "    def estimate_rate(self, view): return [0, 0, 0]\n"
                 "    def velocity(self, view, r): return [0, 0, 0]\n")
@@ -246,7 +247,7 @@ def test_a_failing_law_stops_the_robot_keeps_its_estimate_and_is_counted(tmp_pat
 def test_a_numpy_law_that_returns_a_list_or_a_tuple_is_taken_as_is(tmp_path):
     """3 numbers in any sequence: a tuple of ints flies as floats."""
     (tmp_path / "tuplelaw.py").write_text(
-        "class Still:\n    def __init__(self, params, robot_id): pass\n"
+        "class Still:\n    def __init__(self, params, robot_id, scenario): pass\n"
         "    def estimate_rate(self, view): return (0, 0, 1)\n"
         "    def velocity(self, view, rate): return (0, 0, int(rate[2]))\n")
     sim = Simulation(load(scenario_beside(tmp_path, "tuplelaw:Still", duration=0.5)))

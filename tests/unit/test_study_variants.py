@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fxswarm.core import control
+from fxswarm.core import control, paper_law
 from fxswarm.core.bounds import estimator_bound_derived, estimator_bound_printed, settling_time_limit
 from fxswarm.core.control import BehaviourGains, EstimatorGains
 from fxswarm.core.scenario import ScenarioError, load, parse
@@ -204,10 +204,10 @@ def test_robot_control_default_is_explicit_euler():
     law = control.ControlParameters(FORMATION, FORMATION, GAINS, d=2.0)
     args = ([1.0, 2.0, 0.5], [0.0, 0.0, 0.0], [[0.1, 0.2, 0.0], [0.0, 0.0, 0.3]], [1.0, 1.0],
             [1.0, 0.0, 0.0], [0.0, 0.0, 0.0], None, None)
-    out = control.robot_control(*args, law, 0.01)
+    out = paper_law.robot_control(*args, law, 0.01)
     dph = control.estimator_rate(args[1], args[2], args[3], GAINS)
     assert out.dph == dph
     assert out.v == control.formation_velocity(out.e, dph, args[5], FORMATION)
-    semi = control.robot_control(*args, replace(law, semi_implicit=True), 0.01)
+    semi = paper_law.robot_control(*args, replace(law, semi_implicit=True), 0.01)
     nxt = control.estimator_step_semi_implicit(args[1], args[2], args[3], GAINS, 0.01)
     np.testing.assert_allclose(np.array(args[1]) + 0.01 * np.array(semi.dph), nxt, rtol=0, atol=1e-15)

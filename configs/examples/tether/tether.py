@@ -15,7 +15,7 @@ import numpy as np
 
 
 class Tether:
-    def __init__(self, params: dict, robot_id: int):
+    def __init__(self, params: dict, robot_id: int, scenario):
         unknown = set(params) - {"kc", "kf", "ka"}
         if unknown:
             raise ValueError(f"unknown parameters {sorted(unknown)} (known: ka, kc, kf)")
@@ -27,11 +27,8 @@ class Tether:
 
     def estimate_rate(self, view):
         pull = np.zeros(3)
-        for a, ph_j in view.neighbours:
+        for a, ph_j in zip(view.weights, view.rows):  # neighbours, then the leader if pinned and heard
             pull += a * (ph_j - view.ph)
-        if view.leader is not None:
-            b, p0 = view.leader
-            pull += b * (p0 - view.ph)
         return self.kc * pull
 
     def velocity(self, view, estimate_rate):

@@ -9,17 +9,15 @@ class Flaky:
     """Tether-like, but robot 2 raises from t = 0.5 s to 0.8 s, robot 3 returns NaN from its
     estimator at t >= 1 s, robot 5 returns 2 numbers as its velocity at 0.3 s <= t < 0.4 s."""
 
-    def __init__(self, params, robot_id):
+    def __init__(self, params, robot_id, scenario):
         self.id = robot_id
 
     def estimate_rate(self, view):
         if self.id == 3 and view.t >= 1.0:
             return [math.nan, 0.0, 0.0]
         rate = np.zeros(3)
-        for a, ph in view.neighbours:
+        for a, ph in zip(view.weights, view.rows):
             rate += a * (ph - view.ph)
-        if view.leader is not None:
-            rate += view.leader[0] * (view.leader[1] - view.ph)
         return 4.0 * rate
 
     def velocity(self, view, rate):
