@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fxswarm.core.laws import registered_laws
 from fxswarm.core.scenario import ScenarioError, ScenarioWarning, parse
 from fxswarm.faults.plan import CLI_HELP as FAULT_HELP
 from fxswarm.faults.plan import resolve
@@ -34,7 +35,6 @@ from fxswarm.faults.summary import LINK_COUNTS
 from fxswarm.runtime.numbers import positive, positive_int
 from fxswarm.runtime.output import prepare_run_folder
 from fxswarm.study.campaign_plan import (
-    BUILTIN_LAWS,
     CampaignError,
     Criteria,
     Plan,
@@ -131,8 +131,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="an axis of the grid (repeatable): a --fault placeholder, or a scenario value as "
                         "table.key (e.g. scenario.dt=0.01,0.005); every combination is a cell")
     p.add_argument("--laws", default="", metavar="L1,L2,...",
-                   help=f"laws to fly in every cell: {', '.join(BUILTIN_LAWS)} or module:Class "
-                        "(default: the scenario's own)")
+                   help="laws to fly in every cell: any name a scenario's [controller] law takes (registered: "
+                        f"{', '.join(sorted(registered_laws()))}; or module:Class, looked for beside the scenario "
+                        "first); default: the scenario's own. Only the scenario's own law gets its [controller.params]")
     p.add_argument("--seeds", type=positive_int, default=1, metavar="N",
                    help="runs per cell and law, each with its own fault seed (default 1)")
     p.add_argument("--seed", type=int, default=0, help="the campaign's seed: every fault seed derives from it "
@@ -186,6 +187,10 @@ def main(args: argparse.Namespace) -> int:
     t = doc["totals"]
     print(f"fxswarm campaign: {t['runs']}/{t['planned']} runs, {t['successes']} succeeded, {t['errors']} errors; "
           f"wrote {path} (figures: fxswarm report {out})", file=sys.stderr)
+    if code == 0 and t["errors"]:  # a run that could not run is no result: the campaign did not do its job
+        print(f"fxswarm campaign: {t['errors']} of {t['runs']} runs errored (could not run; see 'error' in "
+              f"{out / 'runs.jsonl'}): exit 1", file=sys.stderr)
+        code = 1
     if code == 0 and args.confirm:
         code = confirm(plan, out, records, args.confirm, args.seed, quiet=args.quiet)
     return code

@@ -20,7 +20,7 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from fxswarm.core.paper_law import BUILTIN_LAWS
+from fxswarm.core.laws import LawError, resolve_law
 from fxswarm.core.scenario import Scenario, ScenarioError, ScenarioWarning, parse
 from fxswarm.core.tomltext import dump_toml
 from fxswarm.faults.plan import resolve
@@ -119,25 +119,26 @@ def parse_axis(text: str) -> Axis:
     return Axis(name, texts, tuple(value_of(t) for t in texts))
 
 
-def law_label(table: dict) -> str:
-    """The name of the law a scenario TOML flies (its ``[controller] law``, else its variant)."""
-    controller = table.get("controller") or {}
-    return str(controller.get("law") or controller.get("variant") or "fixed-time")
-
-
-def scenario_table_with_law(table: dict, spec: str) -> dict:
-    """A deep copy of scenario TOML ``table`` flying law ``spec``: a built-in name
-    (:data:`fxswarm.core.laws.BUILTIN_LAWS`) or ``module:Class``.
+def scenario_table_with_law(base: Scenario, spec: str) -> dict:
+    """A deep copy of scenario ``base``'s TOML table flying law ``spec``: any name the scenario's
+    ``[controller] law`` accepts (a registered name, or ``module:Class``, looked for beside the
+    scenario file first), checked here so that a bad name is refused before anything runs.
 
     The one place a campaign chooses a law: ``[controller] law``, the law API's own key
     (docs/controllers.md), so a campaign flies every law as ``fxswarm sim`` does. The
-    base's ``variant``/``estimator_variant`` go: the law's name says its family.
+    base's ``variant``/``estimator_variant`` go: the law's name says its family. The
+    scenario's ``[controller.params]`` are its own law's: a law named in ``--laws`` that is
+    not the scenario's own gets none (docs/campaigns.md).
     """
-    if spec not in BUILTIN_LAWS and not re.fullmatch(r"[A-Za-z_][\w.]*:[A-Za-z_]\w*", spec):
-        raise CampaignError(f"--laws: expected built-in laws ({', '.join(BUILTIN_LAWS)}) or module:Class, "
-                            f"got {spec!r}")
-    out = copy.deepcopy(table)
-    controller = {k: v for k, v in (out.get("controller") or {}).items() if k not in ("variant", "estimator_variant")}
+    try:
+        resolve_law(spec, base.law_folder)
+    except LawError as exc:
+        raise CampaignError(f"--laws {spec!r}: {exc}") from None
+    out = copy.deepcopy(base.raw)
+    if spec == base.law:
+        return out
+    drop = ("variant", "estimator_variant", "params")
+    controller = {k: v for k, v in (out.get("controller") or {}).items() if k not in drop}
     out["controller"] = dict(controller, law=spec)
     return out
 
@@ -174,11 +175,11 @@ def make_plan(config: str, base: Scenario, out: Path, templates: list[str], axes
         raise CampaignError(f"--seeds: expected a count >= 1, got {seeds}")
     law_specs = list(dict.fromkeys(laws)) or [None]
     config_bytes = Path(config).read_bytes()
-    files = law_modules(config, out, [s for s in law_specs if s is not None])
+    files = law_modules(config, out, [base.law] + [s for s in law_specs if s is not None])
     spec = {
         "format": "fxswarm-campaign/1", "config": config, "config_sha256": hashlib.sha256(config_bytes).hexdigest(),
         "faults": list(templates), "grid": {a.name: list(a.texts) for a in axes},
-        "laws": [law_label(base.raw) if s is None else s for s in law_specs], "seeds": seeds, "seed": seed,
+        "laws": [base.law if s is None else s for s in law_specs], "seeds": seeds, "seed": seed,
         "criteria": criteria.as_dict(),
         "law_modules": {Path(dest).name: _file_digest(src) for dest, src in files.items()},
     }
@@ -188,8 +189,8 @@ def make_plan(config: str, base: Scenario, out: Path, templates: list[str], axes
     checked: set[tuple] = set()
     runs: list[Run] = []
     for law_spec in law_specs:
-        law = law_label(base.raw) if law_spec is None else law_spec
-        with_law = copy.deepcopy(base.raw) if law_spec is None else scenario_table_with_law(base.raw, law_spec)
+        law = base.law if law_spec is None else law_spec
+        with_law = copy.deepcopy(base.raw) if law_spec is None else scenario_table_with_law(base, law_spec)
         for combo in itertools.product(*(range(len(a.values)) for a in axes)):
             cell = {a.name: a.values[k] for a, k in zip(axes, combo)}
             texts = {a.name: a.texts[k] for a, k in zip(axes, combo)}
@@ -227,8 +228,9 @@ def make_plan(config: str, base: Scenario, out: Path, templates: list[str], axes
 
 def law_modules(config: str, out: Path, law_specs: list[str]) -> dict[str, Path]:
     """The module files (``NAME.py`` or a package folder) beside the scenario file that
-    ``module:Class`` laws name: a run's scenario sits in DIR/scenarios/, so they are copied there,
-    where the law API looks (beside the scenario), and the campaign folder keeps the code it flew."""
+    ``module:Class`` laws name (the scenario's own and those of ``--laws``): a run's scenario sits
+    in DIR/scenarios/, so they are copied there, where the law API looks (beside the scenario),
+    the campaign folder keeps the code it flew, and a Dask campaign uploads them to every worker."""
     found = {}
     for spec in law_specs:
         if ":" not in spec:

@@ -178,17 +178,21 @@ def test_a_killed_worker_ends_the_campaign_keeping_every_finished_run_and_the_re
 
 @pytest.fixture
 def dask_cluster(tmp_path):
-    """A real Dask scheduler and two single-threaded workers on 127.0.0.1, torn down after the test."""
+    """A real Dask scheduler and two single-threaded workers on 127.0.0.1, torn down after the test.
+    The workers run in a folder of their own, as on another machine: the campaign's folder is
+    not theirs, so what they import must reach them through the scheduler."""
     port = free_port()
     address = f"tcp://127.0.0.1:{port}"
     logs = tmp_path / "dask-logs"
     logs.mkdir()
+    elsewhere = tmp_path / "workers-home"
+    elsewhere.mkdir()
     procs = []
 
     def start(name: str, argv: list[str]) -> None:
         with open(logs / f"{name}.log", "wb") as log:
             procs.append(subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=log, stderr=log,
-                                          start_new_session=True))
+                                          start_new_session=True, cwd=elsewhere))
 
     try:
         start("scheduler", [str(BIN / "dask"), "scheduler", "--host", "127.0.0.1", "--port", str(port),
@@ -296,3 +300,28 @@ def test_report_draws_the_map_and_distributions_of_a_campaign(tmp_path):
     index = (out / "index.md").read_text()
     assert index.count("\n| fixed-time |") == 4 and index.count("\n| asymptotic |") == 4
     assert "![success_map](success_map.png)" in index
+
+
+def test_a_scenario_whose_own_law_sits_beside_it_runs_on_dask_workers_in_another_folder(tmp_path, dask_cluster):
+    """No --laws: the law the scenario itself names (a module beside the scenario file) reaches
+    every worker as a --laws one does; before, every run errored with "cannot import"."""
+    home = tmp_path / "mine"
+    home.mkdir()
+    (home / "stilllaw.py").write_text(STILL)
+    config = home / "still.toml"
+    config.write_text(Path(PAPER_FAST).read_text() + '\n[controller]\nlaw = "stilllaw:Still"\n')
+    out = tmp_path / "c"
+    argv = [FXSWARM, "campaign", str(config), "--out", str(out), "--fault", "agent:*->agent:* drop={loss}",
+            "--grid", "loss=0,0.4", "--grid", "scenario.duration=0.5",
+            "--executor", f"dask://{dask_cluster[len('tcp://'):]}"]
+    proc = subprocess.run(argv, capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    recs = records(out)
+    assert [r["law"] for r in recs] == ["stilllaw:Still"] * 2
+    assert all(r["status"] == "done" and not r["metrics"]["law_errors"] for r in recs), recs
+    from distributed import Client
+
+    with Client(dask_cluster, timeout="60s") as client:
+        held = client.run(lambda dask_worker: sorted(os.listdir(dask_worker.local_directory)))
+    assert all("stilllaw.py" in names for names in held.values()), held
+

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,8 @@ from fxswarm.study.campaign_plan import (
 from fxswarm.study.campaign_store import RUNS, claim_folder, read_runs, wilson_interval
 
 from support import PAPER_FAST
+
+TETHER = Path(__file__).resolve().parents[2] / "configs" / "examples" / "tether" / "tether.toml"
 
 CRITERIA = Criteria(min_distance_m=1.0, settle_within_s=None, final_error_m=0.2)
 TEMPLATE = "agent:*->agent:* drop={loss} delay={delay}"
@@ -87,14 +90,47 @@ def test_a_wrong_grid_or_template_is_refused_before_any_run_naming_it(tmp_path, 
 
 
 def test_law_selection_maps_builtins_onto_the_variants_and_a_user_law_onto_controller_law():
-    base = load(PAPER_FAST).raw
+    base = load(PAPER_FAST)
     for name in ("fixed-time", "asymptotic", "finite-time"):
         sc = parse(scenario_table_with_law(base, name), "x.toml")
         assert sc.variant == name and sc.estimator_variant == name
-    user = scenario_table_with_law(base, "mylaw:Tether")
-    assert user["controller"]["law"] == "mylaw:Tether" and "controller" not in base
-    with pytest.raises(CampaignError, match="expected built-in laws"):
+    tether = load(TETHER)
+    user = scenario_table_with_law(base, "fxswarm.core.paper_law:BehaviouralLaw")
+    assert user["controller"]["law"] == "fxswarm.core.paper_law:BehaviouralLaw" and "controller" not in base.raw
+    with pytest.raises(CampaignError, match=r"--laws 'no such law': 'no such law' is neither a registered law"):
         scenario_table_with_law(base, "no such law")
+    with pytest.raises(CampaignError, match=r"--laws 'nolaw:Nothing': cannot import 'nolaw'"):
+        scenario_table_with_law(tether, "nolaw:Nothing")
+
+
+def test_any_name_the_scenario_takes_is_accepted_and_runs_are_labelled_with_the_scenarios_own_law_name(tmp_path):
+    """A law registered under its own module:Class name is taken (no pattern on names), and a
+    scenario flying fixed-time with feedforward tracking is labelled so, not 'fixed-time'."""
+    table = dict(load(PAPER_FAST).raw, estimator={"tracking": "feedforward"})
+    config = tmp_path / "ff.toml"
+    from fxswarm.core.tomltext import dump_toml
+    config.write_text(dump_toml(table))
+    plan = make_plan(str(config), load(config), tmp_path / "c", [], [], [], 1, 0, CRITERIA)
+    assert plan.laws == ("fixed-time+feedforward",) and {r.law for r in plan.runs} == {"fixed-time+feedforward"}
+    plan = make_plan(str(config), load(config), tmp_path / "d", [], [],
+                     ["fxswarm.core.paper_law:BehaviouralLaw", "fixed-time+feedforward"], 1, 0, CRITERIA)
+    assert plan.laws == ("fxswarm.core.paper_law:BehaviouralLaw", "fixed-time+feedforward")
+
+
+def test_only_the_scenarios_own_law_gets_its_controller_params(tmp_path):
+    """The tether example against the paper's law in one campaign (docs/controllers.md's workflow):
+    tether keeps its [controller.params], fixed-time gets none, and both fly."""
+    out = tmp_path / "c"
+    args = campaign_args(TETHER, out, laws="tether:Tether,fixed-time")
+    assert campaign.main(args) == 0
+    records = [json.loads(line) for line in (out / RUNS).read_text().splitlines()]
+    assert sorted({r["law"] for r in records}) == ["fixed-time", "tether:Tether"] and len(records) == 8
+    assert all(r["status"] == "done" and not r["metrics"]["law_errors"] for r in records), records
+    tables = {r["law"]: tomllib.loads(Path(r["scenario"]).read_text()) for r in records}
+    assert tables["tether:Tether"]["controller"]["params"] == load(TETHER).raw["controller"]["params"]
+    assert "params" not in tables["fixed-time"]["controller"]
+    # The tether module went with the scenarios (so a worker in any folder imports it).
+    assert (out / "scenarios" / "tether.py").read_bytes() == (TETHER.parent / "tether.py").read_bytes()
 
 
 def test_a_folder_holding_another_campaign_is_refused_naming_the_difference(tmp_path):
@@ -175,7 +211,8 @@ def campaign_args(config, out, **over) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
-def test_a_run_that_raises_is_recorded_with_its_error_counted_and_the_campaign_goes_on(tmp_path, monkeypatch):
+def test_a_run_that_raises_is_recorded_with_its_error_counted_and_the_campaign_goes_on_to_exit_1(tmp_path, monkeypatch,
+                                                                                                 capsys):
     from fxswarm.launch.sim import Simulation
 
     real_run = Simulation.run
@@ -189,7 +226,9 @@ def test_a_run_that_raises_is_recorded_with_its_error_counted_and_the_campaign_g
         return real_run(self, progress)
 
     monkeypatch.setattr(Simulation, "run", run)
-    assert campaign.main(campaign_args(PAPER_FAST, tmp_path / "c", min_distance=1.0)) == 0
+    # Every run is recorded; the one that could not run makes the campaign's exit status 1.
+    assert campaign.main(campaign_args(PAPER_FAST, tmp_path / "c", min_distance=1.0)) == 1
+    assert "fxswarm campaign: 1 of 4 runs errored" in capsys.readouterr().err
     lines = (tmp_path / "c" / RUNS).read_text().splitlines()
     records = [json.loads(line) for line in lines]
     assert len(records) == 4
