@@ -105,7 +105,8 @@ class ZenohOptions:
         return out
 
 
-RECONNECT = "{period_init_ms: 100, period_max_ms: 1000, period_increase_factor: 2}"
+RECONNECT_RETRY = {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2}
+RECONNECT = json.dumps(RECONNECT_RETRY)  # JSON is JSON5
 
 
 def _json_list(items) -> str:
