@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
+from fxswarm.faults.summary import add_processes
+
 
 def prepare_run_folder(out_dir: str | Path, who: str) -> Path:
     """Make ``out_dir`` (and its parents) and check it takes a file, before any work: a folder
@@ -43,6 +45,26 @@ def write_summary(out_dir: str | Path, summary: dict) -> None:
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(summary, indent=2) + "\n")
     tmp.replace(path)  # readers never see half a summary
+
+
+def read_summary(out_dir: str | Path) -> dict | None:
+    """The run's ``summary.json`` (None: there is none yet)."""
+    path = Path(out_dir) / "summary.json"
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def merge_summary(out_dir: str | Path, process_events: list[dict] | None = None,
+                  extra: dict | None = None) -> dict | None:
+    """The world's ``summary.json`` with every role process's counters (once all have stopped),
+    the process faults a launcher sent (:func:`~fxswarm.faults.summary.add_processes`) and
+    ``extra`` (the launcher's own facts); written back and returned (None: no summary)."""
+    summary = read_summary(out_dir)
+    if summary is None:
+        return None
+    add_processes(summary, read_process_counters(out_dir), process_events)
+    summary.update(extra or {})
+    write_summary(out_dir, summary)
+    return summary
 
 
 def read_process_counters(out_dir: str | Path, since: float | None = None) -> dict[str, dict]:
