@@ -53,6 +53,7 @@ from fxswarm.core.messages import WorldState
 from fxswarm.core.metrics import summarise
 from fxswarm.core.scenario import Scenario
 from fxswarm.runtime.connectivity import Connectivity
+from fxswarm.runtime.files import write_atomic
 from fxswarm.runtime.numbers import positive, swarm_name
 from fxswarm.runtime.output import prepare_run_folder, write_run, write_summary
 from fxswarm.runtime.record import Record, RecordError, fetch_record
@@ -390,9 +391,7 @@ def world_record(bus: ZenohBus, obs: Observer, link: Connectivity, stop: dict) -
 
 def write_record(out: Path, summary: dict, record: Record) -> None:
     """``trajectory.npz`` as the world wrote it (byte for byte), then ``summary.json``."""
-    tmp = out / ".trajectory.npz.tmp"
-    tmp.write_bytes(record.trajectory)
-    tmp.replace(out / "trajectory.npz")
+    write_atomic(out / "trajectory.npz", record.trajectory)
     write_summary(out, summary)
 
 

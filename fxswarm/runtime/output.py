@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from fxswarm.faults.summary import add_processes
+from fxswarm.runtime.files import write_atomic
 
 
 def prepare_run_folder(out_dir: str | Path, who: str) -> Path:
@@ -41,10 +42,7 @@ def write_run(out_dir: str | Path, summary: dict, trajectory: dict[str, np.ndarr
 
 
 def write_summary(out_dir: str | Path, summary: dict) -> None:
-    path = Path(out_dir) / "summary.json"
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(summary, indent=2) + "\n")
-    tmp.replace(path)  # readers never see half a summary
+    write_atomic(Path(out_dir) / "summary.json", json.dumps(summary, indent=2) + "\n")
 
 
 def read_summary(out_dir: str | Path) -> dict | None:

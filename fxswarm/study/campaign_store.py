@@ -16,6 +16,7 @@ from statistics import NormalDist
 
 import numpy as np
 
+from fxswarm.runtime.files import write_atomic
 from fxswarm.study.campaign_plan import CampaignError, Plan
 
 SPEC = "spec.json"
@@ -41,9 +42,7 @@ def claim_folder(out: Path, plan: Plan) -> None:
             raise CampaignError(f"{out} holds another campaign's runs ({diff}); use another --out, or the "
                                 "same options to finish that one")
     else:
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(plan.spec, indent=2) + "\n")
-        tmp.replace(path)
+        write_atomic(path, json.dumps(plan.spec, indent=2) + "\n")
 
 
 def read_runs(out: Path, fingerprint: str) -> dict[str, dict]:
@@ -164,8 +163,4 @@ def campaign_document(plan: Plan, records: dict[str, dict]) -> dict:
 
 
 def write_document(out: Path, doc: dict) -> Path:
-    path = out / RESULT
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(doc, indent=2) + "\n")
-    tmp.replace(path)
-    return path
+    return write_atomic(out / RESULT, json.dumps(doc, indent=2) + "\n")
