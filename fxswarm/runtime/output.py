@@ -1,4 +1,7 @@
-"""Writing a run's folder: ``summary.json`` and ``trajectory.npz``."""
+"""A run's folder (``fxswarm sim``, ``fxswarm run``, ``fxswarm attach``): its writer and its one
+reader. ``summary.json`` (the numbers, and ``source``: the scenario file), ``trajectory.npz``
+(every tick), ``processes/<role>-<id>.json`` (each role process's counters).
+"""
 
 from __future__ import annotations
 
@@ -10,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fxswarm.core.scenario import Scenario, load
 from fxswarm.faults.summary import add_processes
 from fxswarm.runtime.files import write_atomic
 
@@ -83,3 +87,19 @@ def read_process_counters(out_dir: str | Path, since: float | None = None) -> di
 def load_trajectory(out_dir: str | Path) -> dict[str, np.ndarray]:
     with np.load(Path(out_dir) / "trajectory.npz") as data:
         return {k: data[k] for k in data.files}
+
+
+def scenario_of_run(run_dir: str | Path) -> Scenario:
+    """The scenario named by ``summary.json``'s ``source`` (tried as given, then beside the run's parents)."""
+    run = Path(run_dir)
+    summary_path = run / "summary.json"
+    try:
+        source = json.loads(summary_path.read_text())["source"]
+    except (OSError, ValueError, KeyError) as exc:
+        raise FileNotFoundError(f"{summary_path}: expected a run summary with a 'source' field ({exc})") from None
+    candidates = [Path(source)] + [parent / source for parent in run.resolve().parents]
+    for path in candidates:
+        if path.is_file():
+            return load(path)
+    raise FileNotFoundError(f"{summary_path}: scenario {source!r} not found (looked in the working directory "
+                            "and the run folder's parents)")
