@@ -154,8 +154,10 @@ def _ros2_view(args: argparse.Namespace, sc):
         return None
     from fxswarm.world.process import ros2_module_or_exit
 
-    ros2_view = ros2_module_or_exit("fxswarm run")
-    return ros2_view.Ros2View(sc, ros2_view.domain_id())
+    ros2 = ros2_module_or_exit("fxswarm run")  # the extra and ROS_DOMAIN_ID, checked
+    from fxswarm.launch.ros2_view import Ros2View
+
+    return Ros2View(sc, ros2.domain_id())
 
 
 def _swarm(args: argparse.Namespace, sc, out: Path, plan, view) -> Swarm:
