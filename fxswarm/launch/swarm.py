@@ -173,7 +173,8 @@ class Swarm:
         for child in children:
             self.processes.start(child)
         routers = [c for c in children if c.role == "router"]
-        self.watch.open(self.swarm, self.options, max(1000, int(timeout * 1000)), lambda: self._still_up(routers))
+        wait_ms = max(1000, int((t0 + timeout - time.monotonic()) * 1000))
+        self.watch.open(self.swarm, self.options, wait_ms, lambda: self._still_up(routers))
         self._wait_alive([c for c in children if c.role != "logger"], t0 + timeout)
         logger = self.children.get("logger")
         if logger is not None:
