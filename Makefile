@@ -49,8 +49,16 @@ $(ZENOHD):
 test-zenohd: $(STAMP) $(ZENOHD)
 	FXSWARM_ZENOHD=$(abspath $(ZENOHD)) $(PY) -m pytest tests/integration/test_router_restart.py
 
+# The maintained benchmarks at their quick settings, in a few minutes; each writes its own
+# benchmarks/results/<name>.json (benchmarks/README.md: each one's full command and what it
+# measures; the ones that need Docker, perf or tens of minutes are run by hand).
 bench: $(STAMP)
-	$(PY) benchmarks/bench_sim.py
+	$(PY) benchmarks/bench_sim.py --repeats 1
+	$(PY) benchmarks/bench_hotloop.py --repeat 2
+	$(PY) benchmarks/bench_runtime.py --quick
+	$(PY) benchmarks/bench_shutdown.py --rounds 1
+	$(PY) benchmarks/bench_liveliness.py --rounds 1 --lease-ms 2000
+	$(PY) benchmarks/bench_campaign.py --repeats 1 --duration 5 --seeds 2
 
 clean:
 	rm -rf $(VENV) runs build dist .pytest_cache

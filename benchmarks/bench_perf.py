@@ -1,7 +1,7 @@
 """Where one robot's CPU per lock-step tick goes, by library: runtime against its floor (Linux ``perf``).
 
     python benchmarks/bench_perf.py [CONFIG] [--robot 2] [--short 500] [--long 3000] [--repeat 2]
-        [--out benchmarks/results/perf_agent.json]
+        [--out benchmarks/results/perf.json]
 
 bench_threads.py splits the CPU by thread; this splits one agent process's CPU by
 the library it runs in: the Python interpreter (``libpython``), the kernel (system
@@ -108,7 +108,7 @@ def samples_by_group(argv: list[str], robot: int, folder: Path) -> dict[str, int
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    add_short_long_arguments(p, "perf_agent.json")
+    add_short_long_arguments(p, "perf.json")
     p.add_argument("--robot", type=int, default=2)
     a = p.parse_args()
     if shutil.which("perf") is None:

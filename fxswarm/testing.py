@@ -54,7 +54,7 @@ def scenario_with(base: str | Path, folder: str | Path, **overrides: Any) -> Pat
 
 
 class SwarmUnderTest:
-    """A running swarm as a test sees it; wraps :class:`fxswarm.launch.launcher.Swarm`.
+    """A running swarm as a test sees it; wraps :class:`fxswarm.launch.swarm.Swarm`.
 
     Process names: ``world``, ``leader``, ``router``, ``logger``, ``agent-<id>``.
     """
@@ -63,14 +63,14 @@ class SwarmUnderTest:
                  logger: bool = False, tick_timeout: float = 1.0, lease_ms: int | None = None,
                  topology: str | None = None, secure: str | Path | None = None, audit: bool = False,
                  world_args: tuple[str, ...] = (), routers: int = 1) -> None:
-        from fxswarm.launch.launcher import Swarm
+        from fxswarm.launch.swarm import Swarm
 
         swarm_name = f"test-{os.getpid()}-{next(_counter)}"
         self.swarm = Swarm(str(config), Path(out), clock=clock, speed=speed, swarm=swarm_name, logger=logger,
                            tick_timeout=tick_timeout, lease_ms=lease_ms, topology=topology,
                            secure=str(secure) if secure else None, audit=audit, world_args=tuple(world_args),
                            routers=routers)
-        self.deaths: list = []  # unplanned deaths seen so far (launcher.Death)
+        self.deaths: list = []  # unplanned deaths seen so far (processes.Death)
 
     @property
     def scenario(self):
@@ -85,8 +85,8 @@ class SwarmUnderTest:
         return self
 
     def pump(self, timeout: float = 0.05) -> None:
-        self.deaths += self.swarm.poll(timeout)
-        self.swarm.run_process_faults()  # the scenario's [[faults.processes]], at their times
+        deaths, _ = self.swarm.tend(timeout)  # a dead router started again, the scenario's process faults sent
+        self.deaths += deaths
 
     def sim_time(self) -> float:
         return self.swarm.sim_time()
@@ -183,7 +183,7 @@ class SwarmUnderTest:
                 raise TimeoutError(f"the run did not finish within {timeout:g} s (t = {self.sim_time():.2f} s)")
             self.pump(0.1)
         if world.popen.returncode != expect_exit:
-            from fxswarm.launch.launcher import Death
+            from fxswarm.launch.processes import Death
 
             raise RuntimeError(Death(world, world.popen.returncode).describe())
         self.swarm.stop(grace=3.0)

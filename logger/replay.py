@@ -8,7 +8,6 @@ would have logged, at the same rate.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -17,23 +16,7 @@ from fxswarm.core.messages import WorldState
 from fxswarm.core.scenario import Scenario, load
 from fxswarm.logger.recorder import RecorderOptions, SwarmRecorder
 from fxswarm.logger.sinks import Outputs, open_recording
-from fxswarm.runtime.output import load_trajectory
-
-
-def scenario_of_run(run_dir: str | Path) -> Scenario:
-    """The scenario named by ``summary.json``'s ``source`` (tried as given, then beside the run's parents)."""
-    run = Path(run_dir)
-    summary_path = run / "summary.json"
-    try:
-        source = json.loads(summary_path.read_text())["source"]
-    except (OSError, ValueError, KeyError) as exc:
-        raise FileNotFoundError(f"{summary_path}: expected a run summary with a 'source' field ({exc})") from None
-    candidates = [Path(source)] + [parent / source for parent in run.resolve().parents]
-    for path in candidates:
-        if path.is_file():
-            return load(path)
-    raise FileNotFoundError(f"{summary_path}: scenario {source!r} not found (looked in the working directory "
-                            "and the run folder's parents)")
+from fxswarm.runtime.output import load_trajectory, scenario_of_run
 
 
 def world_states(traj: dict[str, np.ndarray]):

@@ -79,11 +79,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def ros2_or_exit(sc: Scenario, who: str = "fxswarm world"):
     """The ROS 2 world's module (:mod:`fxswarm.world.ros2`), once its extra, ``ROS_DOMAIN_ID`` and a
     speed limit are there; else one line on stderr and exit 2 (before anything starts)."""
+    from fxswarm.world.safety import require_speed_limit
+
     ros2 = ros2_module_or_exit(who)
-    if ros2.speed_limit(sc) is None:
-        print(f"{who}: {sc.source}: ros2.v_max: expected a speed limit (m/s) for real robots, in [ros2] v_max "
-              "or [scenario] v_max", file=sys.stderr)
-        raise SystemExit(2)
+    try:
+        require_speed_limit(sc)
+    except ValueError as exc:
+        print(f"{who}: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
     return ros2
 
 

@@ -1,18 +1,13 @@
-"""ROS 2 over DDS: the world role as a gateway to ROS 2 robots (``fxswarm world --ros2``), and any
-run shown to ROS 2 tools (:class:`Ros2View`, ``fxswarm run --ros2``). All of fxswarm's DDS is here.
+"""ROS 2 over DDS: the world role as a gateway to ROS 2 robots (``fxswarm world --ros2``).
 
 The simulated world integrates the robots; this one lets them move themselves. Everything
 else is the world node's own code (:class:`~fxswarm.world.node.WorldNode`): the nearest object,
 each agent's sensing, the hold rule for a silent agent, the record, the summary. Only
 :meth:`GatewayWorld.move` differs: it takes the poses the robots published instead of
-``p += dt * v``. Real time only.
+``p += dt * v``. Real time only. :class:`GatewayWorld` holds no DDS (:class:`Ros2Link` fills
+its board and sends what it says); what it has to report goes to its ``warn``.
 
-Safety, in one place (:meth:`GatewayWorld.safe`): every command is limited to ``v_max``;
-a robot whose agent is silent longer than ``silent_hold`` (the world's hold rule) or gone, or
-whose pose is older than ``[ros2] pose_timeout``, is sent a zero Twist (a stale pose is
-reported on stderr); :meth:`Ros2Link.stop_all` sends every robot a zero Twist and waits for the
-robots to acknowledge it, on every way out of the world process (end of run, SIGINT/SIGTERM, a
-crash). A SIGKILL leaves nothing to do that: robots need their own cmd_vel timeout.
+Safety: every rule on what may reach a robot is in :mod:`fxswarm.world.safety`.
 
 DDS: one participant in domain ``ROS_DOMAIN_ID`` (default 0), configured by the user's own
 ``CYCLONEDDS_URI`` (untouched here). Poses are read best-effort (that matches a reliable and a
@@ -25,7 +20,7 @@ from __future__ import annotations
 import math
 import os
 import sys
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 
 import numpy as np
 from cyclonedds.core import Policy, Qos
@@ -38,10 +33,8 @@ from fxswarm.core.pacing import WallClock
 from fxswarm.core.scenario import Ros2Settings, Scenario
 from fxswarm.faults.plan import DegradedLimits
 from fxswarm.world.node import WorldNode
-from fxswarm.core.messages import WorldState
-from fxswarm.world.ros2_msgs import (MARKER_ADD, MARKER_SPHERE, POSE_TYPES, ColorRGBA_, Header_, Marker_,
-                                     MarkerArray_, Point_, Pose_, PoseStamped_, Twist_, Vector3_, dds_topic,
-                                     pose_of, time_msg)
+from fxswarm.world.safety import STOP_ACK_TIMEOUT_S, Safety
+from fxswarm.world.ros2_msgs import POSE_TYPES, Twist_, Vector3_, dds_topic, pose_of
 
 DOMAIN_ENV = "ROS_DOMAIN_ID"
 
@@ -54,18 +47,6 @@ def domain_id(env: dict[str, str] | None = None) -> int:
     if not text.isdigit() or int(text) > 232:  # ROS 2's range: DDS ports beyond it overflow
         raise ValueError(f"{DOMAIN_ENV}: expected an integer in 0..232, got {text!r}")
     return int(text)
-
-
-def speed_limit(sc: Scenario) -> float | None:
-    """The limit on every command sent to a robot, m/s: ``[ros2] v_max``, else ``[scenario] v_max``."""
-    return sc.ros2.v_max if sc.ros2.v_max is not None else sc.v_max
-
-
-def limited(v: np.ndarray, v_max: float) -> np.ndarray:
-    """``v`` (n, 3) with each row's norm scaled down to at most ``v_max`` m/s (direction kept)."""
-    speed = np.linalg.norm(v, axis=1)
-    scale = np.minimum(1.0, v_max / np.maximum(speed, 1e-12))
-    return v * scale[:, None]
 
 
 def yaw_of(x: float, y: float, z: float, w: float) -> float:
@@ -116,22 +97,22 @@ class PoseBoard:
 
 
 class GatewayWorld(WorldNode):
-    """The world node on measured poses (:attr:`board`), with the gateway's safety rules.
+    """The world node on measured poses (:attr:`board`), every command made safe by :attr:`safety`."""
 
-    Sans I/O: :class:`Ros2Link` fills the board and sends :meth:`velocities`.
-    """
-
-    def __init__(self, scenario: Scenario, board: PoseBoard, limits: DegradedLimits | None = None) -> None:
+    def __init__(self, scenario: Scenario, board: PoseBoard, limits: DegradedLimits | None = None,
+                 warn: Callable[[str], object] = lambda text: print(text, file=sys.stderr)) -> None:
         super().__init__(scenario, limits=limits)
-        v_max = speed_limit(scenario)
-        if v_max is None:
-            raise ValueError("a ROS 2 world needs a speed limit: [ros2] v_max or [scenario] v_max")
-        self.board, self.v_max = board, v_max
-        self.gone: Collection[int] = ()  # robots whose agent process has left: held at zero at once
-        self.stale = np.zeros(scenario.n, dtype=bool)  # robots whose pose is too old now
-        self.stale_pose_ticks = np.zeros(scenario.n, dtype=int)
-        self.stale_episodes = np.zeros(scenario.n, dtype=int)
-        self.limited_ticks = np.zeros(scenario.n, dtype=int)  # ticks a command was above v_max
+        self.board, self.warn = board, warn
+        self.safety = Safety(scenario)  # ValueError without a speed limit
+
+    @property
+    def gone(self) -> Collection[int]:
+        """Robots whose agent process has left (the world process says): held at zero at once."""
+        return self.safety.gone
+
+    @gone.setter
+    def gone(self, robots: Collection[int]) -> None:
+        self.safety.gone = robots
 
     def start(self):
         self.p = self.board.p.copy()  # where the robots are, not where the scenario put them
@@ -139,42 +120,29 @@ class GatewayWorld(WorldNode):
 
     def move(self, dt: float) -> None:
         """The robots moved themselves: take their latest poses (a stale one is kept, and its
-        robot held at zero; each new stale episode is said on stderr). The held commands become
-        what is sent (:meth:`safe`), so teammates sense a held robot as still."""
+        robot held at zero; each new stale episode is said). The held commands become what is
+        sent (:meth:`Safety.safe`), so teammates sense a held robot as still."""
         fresh = self.board.fresh()
         self.p = np.where(fresh[:, None], self.board.p, self.p)
-        became = ~fresh & ~self.stale
-        if became.any():
+        became = self.safety.tick(fresh, self.v)
+        if len(became):
             age = self.board.age()
-            for i in np.flatnonzero(became):
-                print(f"fxswarm world: robot {i + 1}'s pose is {age[i]:.2f} s old (limit "
-                      f"{self.board.timeout:g} s): holding it at zero", file=sys.stderr)
-            self.stale_episodes += became
-        self.stale = ~fresh
-        self.stale_pose_ticks += self.stale
-        self.limited_ticks += np.linalg.norm(self.v, axis=1) > self.v_max + 1e-9
-        self.v = self.safe(self.v)
-
-    def safe(self, v: np.ndarray) -> np.ndarray:
-        """Velocities ``v`` (n, 3) as they may reach the robots: limited to ``v_max``, zero for a
-        robot whose agent is gone or whose pose is stale (the world's hold rule has already
-        zeroed a silent agent's)."""
-        v = limited(v, self.v_max)
-        v[self.stale] = 0.0
-        for r in self.gone:
-            v[r - 1] = 0.0
-        return v
+            for i in became:
+                self.warn(f"fxswarm world: robot {i + 1}'s pose is {age[i]:.2f} s old (limit "
+                          f"{self.board.timeout:g} s): holding it at zero")
+        self.v = self.safety.safe(self.v)
 
     def velocities(self) -> np.ndarray:
-        """The world-frame velocities to send now (n, 3): the held commands made :meth:`safe`
-        (again: a command may have landed, on a Zenoh thread, since :meth:`move`)."""
-        return self.safe(self.v.copy())
+        """The world-frame velocities to send now (n, 3): the held commands made safe (again: a
+        command may have landed, on a Zenoh thread, since :meth:`move`)."""
+        return self.safety.safe(self.v.copy())
 
     def report(self) -> dict:
         """Counters for the world's counters file."""
         per = lambda a: {str(r.id): int(x) for r, x in zip(self.sc.robots, a)}  # noqa: E731
-        return {"ros2_stale_pose_ticks": per(self.stale_pose_ticks), "ros2_stale_episodes": per(self.stale_episodes),
-                "ros2_limited_ticks": per(self.limited_ticks), "ros2_v_max": self.v_max}
+        s = self.safety
+        return {"ros2_stale_pose_ticks": per(s.stale_pose_ticks), "ros2_stale_episodes": per(s.stale_episodes),
+                "ros2_limited_ticks": per(s.limited_ticks), "ros2_v_max": s.v_max}
 
 
 class Ros2Link:
@@ -232,7 +200,7 @@ class Ros2Link:
             writer.write(twist)
         self.twists_sent += len(self.writers)
 
-    def stop_all(self, timeout: float = 1.0) -> bool:
+    def stop_all(self, timeout: float = STOP_ACK_TIMEOUT_S) -> bool:
         """Every robot: a zero Twist, then wait up to ``timeout`` s for every subscriber to
         acknowledge it; whether all did."""
         for writer in self.writers:
@@ -244,59 +212,3 @@ class Ros2Link:
     def report(self) -> dict:
         return {"ros2_poses_received": self.poses_received, "ros2_poses_dropped": self.poses_dropped,
                 "ros2_twists_sent": self.twists_sent}
-
-
-#: Where :class:`Ros2View` publishes (ROS 2 topic names; ``{id}``: the robot's id).
-VIEW_TOPICS = {"robot": "/fxswarm/robot{id}/pose", "estimate": "/fxswarm/robot{id}/estimate",
-               "leader": "/fxswarm/leader/pose", "obstacles": "/fxswarm/obstacles"}
-
-
-class Ros2View:
-    """A run as standard ROS 2 messages, for RViz, Foxglove and rosbag2 (docs/ros2.md).
-
-    From each world state (at most one per ``period`` s of simulation time): each robot's pose
-    and estimate (``geometry_msgs/PoseStamped``), the virtual leader's pose (from the scenario's
-    path, as every robot's estimate tracks it) and the obstacles (``visualization_msgs/MarkerArray``,
-    spheres of the repulsive radius ``d``). Frame ``[ros2] frame``, stamps in simulation time.
-    Reliable, keep-last 10: a reliable or a best-effort subscriber matches.
-    """
-
-    def __init__(self, sc: Scenario, domain: int, period: float = 0.02) -> None:
-        self.sc, self.frame, self.period = sc, sc.ros2.frame, period
-        self.participant = DomainParticipant(domain)
-        qos = Qos(Policy.Reliability.Reliable(100_000_000), Policy.History.KeepLast(10))
-
-        def writer(topic: str, kind):
-            return DataWriter(self.participant, Topic(self.participant, dds_topic(topic), kind), qos=qos)
-
-        ids = [r.id for r in sc.robots]
-        self.robots = [writer(VIEW_TOPICS["robot"].replace("{id}", str(i)), PoseStamped_) for i in ids]
-        self.estimates = [writer(VIEW_TOPICS["estimate"].replace("{id}", str(i)), PoseStamped_) for i in ids]
-        self.leader = writer(VIEW_TOPICS["leader"], PoseStamped_)
-        self.obstacles = writer(VIEW_TOPICS["obstacles"], MarkerArray_)
-        self.next_t = -math.inf
-        self.published = 0  # world states published
-
-    def publish(self, state: WorldState) -> bool:
-        """Publish ``state`` if a period of simulation time has passed since the last; whether it did."""
-        if state.t < self.next_t or len(state.p) != self.sc.n:
-            return False
-        self.next_t = state.t + self.period - 1e-9
-        header = Header_(stamp=time_msg(max(state.t, 0.0)), frame_id=self.frame)
-
-        def pose(p) -> PoseStamped_:
-            return PoseStamped_(header=header, pose=Pose_(position=Point_(*map(float, p))))
-
-        for w, p in zip(self.robots, state.p):
-            w.write(pose(p))
-        for w, ph in zip(self.estimates, state.ph):
-            w.write(pose(ph))
-        self.leader.write(pose(self.sc.leader.position(state.t)))
-        d = 2.0 * self.sc.d
-        self.obstacles.write(MarkerArray_(markers=[
-            Marker_(header=header, ns="obstacles", id=k, type=MARKER_SPHERE, action=MARKER_ADD,
-                    pose=Pose_(position=Point_(*map(float, o))), scale=Vector3_(d, d, d),
-                    color=ColorRGBA_(0.9, 0.2, 0.2, 0.4))
-            for k, o in enumerate(state.obstacles)]))
-        self.published += 1
-        return True

@@ -124,7 +124,7 @@ class ProcessSchedule:
         return [(what, target) for _, what, target in sorted(out, key=lambda e: e[0])]  # in time order
 
     def run(self, swarm) -> list[dict]:
-        """Send what is due to ``swarm`` (a :class:`fxswarm.launch.launcher.Swarm`); return it,
+        """Send what is due to ``swarm`` (a :class:`fxswarm.launch.swarm.Swarm`); return it,
         as the events logged: ``{action, target, t_s, done_t_s}`` (None: no such process).
 
         Process names: ``agent:3`` -> ``agent-3``. A restart waits until the new

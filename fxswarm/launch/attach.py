@@ -53,6 +53,7 @@ from fxswarm.core.messages import WorldState
 from fxswarm.core.metrics import summarise
 from fxswarm.core.scenario import Scenario
 from fxswarm.runtime.connectivity import Connectivity
+from fxswarm.runtime.files import write_atomic
 from fxswarm.runtime.numbers import positive, swarm_name
 from fxswarm.runtime.output import prepare_run_folder, write_run, write_summary
 from fxswarm.runtime.record import Record, RecordError, fetch_record
@@ -266,6 +267,75 @@ def listening(endpoint: str, timeout_s: float = 2.0) -> bool:
         return False
 
 
+def _connect(args: argparse.Namespace, options: ZenohOptions) -> ZenohBus | int:
+    """The observer's session, or the exit status of a failed attempt (said on stderr)."""
+    try:
+        return ZenohBus(args.swarm, options, who="fxswarm attach")
+    except ConnectError as exc:
+        if options.tls is not None and listening(args.endpoint):
+            print(f"fxswarm attach: no session with the router at {args.endpoint}: it answers, but the TLS "
+                  f"handshake failed (are {options.tls.cert} and {options.tls.ca} of this swarm's "
+                  f"CA, not of another `fxswarm keys` run?); the router's log says why", file=sys.stderr)
+        else:
+            print(exc, file=sys.stderr)
+        return 1
+
+
+def _watch(args: argparse.Namespace, bus: ZenohBus, obs: Observer, link: Connectivity, sc: Scenario,
+           stop: dict, deadline: float) -> int | None:
+    """Follow the run until it is over (and settled), the world has left, or a signal; 3 if
+    the world never said anything in time, else None."""
+    said = 0.0
+    settle_until = None
+    world_gone_since = None
+    while stop["signal"] is None:
+        bus.poll(0.1)
+        now = time.monotonic()
+        if obs.run_over and settle_until is None:
+            settle_until = now + SETTLE_S
+        if settle_until is not None and now >= settle_until:
+            return None
+        # Cut off from every router ourselves, we cannot tell whether the world is there.
+        world_gone_since = (world_gone_since or now) if obs.world_gone() and not link.lost else None
+        if world_gone_since is not None and now - world_gone_since >= WORLD_GONE_S:
+            print(f"fxswarm attach: the world left at t = {obs.last_t:.2f} s without ending the run; "
+                  "writing what it sent", file=sys.stderr)
+            return None
+        if obs.last_tick < 0 and now > deadline:
+            print(f"fxswarm attach: no state from the world of swarm {args.swarm!r} in {args.timeout:g} s",
+                  file=sys.stderr)
+            return 3
+        if not args.quiet and now - said >= PROGRESS_EVERY_S:
+            said = now
+            agents = sum(1 for n in obs.alive if n.startswith("agent/"))
+            print(f"fxswarm attach: t = {obs.last_t:6.2f} / {sc.duration:g} s, {agents}/{sc.n} agents alive, "
+                  f"logger {'up' if 'logger/0' in obs.alive else 'DOWN' if 'logger/0' in obs.ever else 'not seen'}",
+                  file=sys.stderr)
+    return None
+
+
+def _write(out: Path, bus: ZenohBus, obs: Observer, link: Connectivity, stop: dict, started: float) -> int:
+    """Write the run folder: the world's own record if it serves one, else what the stream told."""
+    record = world_record(bus, obs, link, stop) if obs.run_over and stop["signal"] is None else None
+    link.close()
+    bus.close()  # our token goes with it: the world serving its record may leave now
+    if record is not None:
+        summary = obs.summary_with(record)
+        write_record(out, summary, record)
+        how = f"the world's own record, {summary['ticks']} ticks; the live stream missed {summary['states_missed']}"
+    elif obs.last_tick < 0:
+        print("fxswarm attach: stopped before the world sent anything; nothing written", file=sys.stderr)
+        return 1
+    else:
+        summary = obs.summary(time.monotonic() - started)
+        write_run(out, summary, obs.trajectory())
+        how = f"from the live stream, {obs.last_tick + 1} ticks, {summary['states_missed']} missed"
+    print(f"fxswarm attach: wrote {out} ({how}; formation error {summary['formation_error_final_m']:.3f} m, "
+          f"nearest object {summary['min_object_distance_m']} m)", file=sys.stderr)
+    say_warnings(summary)
+    return 0 if summary.get("complete") else 1
+
+
 def main(args: argparse.Namespace) -> int:
     from fxswarm.runtime.config import load_or_exit
 
@@ -279,16 +349,9 @@ def main(args: argparse.Namespace) -> int:
     # While it waits for the router there is nothing to write: Ctrl-C (KeyboardInterrupt) and
     # SIGTERM end it between two connect attempts.
     signal.signal(signal.SIGTERM, lambda signum, _frame: sys.exit(128 + signum))
-    try:
-        bus = ZenohBus(args.swarm, options, who="fxswarm attach")
-    except ConnectError as exc:
-        if options.tls is not None and listening(args.endpoint):
-            print(f"fxswarm attach: no session with the router at {args.endpoint}: it answers, but the TLS "
-                  f"handshake failed (are {options.tls.cert} and {options.tls.ca} of this swarm's "
-                  f"CA, not of another `fxswarm keys` run?); the router's log says why", file=sys.stderr)
-        else:
-            print(exc, file=sys.stderr)
-        return 1
+    bus = _connect(args, options)
+    if isinstance(bus, int):
+        return bus
     link = Connectivity(bus.session, "fxswarm attach")  # says when its own path to the swarm breaks
     stop = {"signal": None}
 
@@ -316,50 +379,8 @@ def main(args: argparse.Namespace) -> int:
         role, _, ident = args.name.partition("/")
         bus.declare_alive(role, ident or "0")
         started = time.monotonic()
-        said = 0.0
-        settle_until = None
-        world_gone_since = None
-        while stop["signal"] is None:
-            bus.poll(0.1)
-            now = time.monotonic()
-            if obs.run_over and settle_until is None:
-                settle_until = now + SETTLE_S
-            if settle_until is not None and now >= settle_until:
-                break
-            # Cut off from every router ourselves, we cannot tell whether the world is there.
-            world_gone_since = (world_gone_since or now) if obs.world_gone() and not link.lost else None
-            if world_gone_since is not None and now - world_gone_since >= WORLD_GONE_S:
-                print(f"fxswarm attach: the world left at t = {obs.last_t:.2f} s without ending the run; "
-                      "writing what it sent", file=sys.stderr)
-                break
-            if obs.last_tick < 0 and now > deadline:
-                print(f"fxswarm attach: no state from the world of swarm {args.swarm!r} in {args.timeout:g} s",
-                      file=sys.stderr)
-                return 3
-            if not args.quiet and now - said >= PROGRESS_EVERY_S:
-                said = now
-                agents = sum(1 for n in obs.alive if n.startswith("agent/"))
-                print(f"fxswarm attach: t = {obs.last_t:6.2f} / {sc.duration:g} s, {agents}/{sc.n} agents alive, "
-                      f"logger {'up' if 'logger/0' in obs.alive else 'DOWN' if 'logger/0' in obs.ever else 'not seen'}",
-                      file=sys.stderr)
-        record = world_record(bus, obs, link, stop) if obs.run_over and stop["signal"] is None else None
-        link.close()
-        bus.close()  # our token goes with it: the world serving its record may leave now
-        if record is not None:
-            summary = obs.summary_with(record)
-            write_record(out, summary, record)
-            how = f"the world's own record, {summary['ticks']} ticks; the live stream missed {summary['states_missed']}"
-        elif obs.last_tick < 0:
-            print("fxswarm attach: stopped before the world sent anything; nothing written", file=sys.stderr)
-            return 1
-        else:
-            summary = obs.summary(time.monotonic() - started)
-            write_run(out, summary, obs.trajectory())
-            how = f"from the live stream, {obs.last_tick + 1} ticks, {summary['states_missed']} missed"
-        print(f"fxswarm attach: wrote {out} ({how}; formation error {summary['formation_error_final_m']:.3f} m, "
-              f"nearest object {summary['min_object_distance_m']} m)", file=sys.stderr)
-        say_warnings(summary)
-        return 0 if summary.get("complete") else 1
+        code = _watch(args, bus, obs, link, sc, stop, deadline)
+        return code if code is not None else _write(out, bus, obs, link, stop, started)
     finally:
         if recorder is not None:
             recorder.close(timeout_s=10.0)
@@ -390,9 +411,7 @@ def world_record(bus: ZenohBus, obs: Observer, link: Connectivity, stop: dict) -
 
 def write_record(out: Path, summary: dict, record: Record) -> None:
     """``trajectory.npz`` as the world wrote it (byte for byte), then ``summary.json``."""
-    tmp = out / ".trajectory.npz.tmp"
-    tmp.write_bytes(record.trajectory)
-    tmp.replace(out / "trajectory.npz")
+    write_atomic(out / "trajectory.npz", record.trajectory)
     write_summary(out, summary)
 
 

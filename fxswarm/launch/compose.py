@@ -150,6 +150,31 @@ def law_module(sc: Scenario) -> tuple[str, Path] | None:
     return (module, path) if "." not in module and path.is_file() else None
 
 
+def _health(role: str, ident: int, interval: int = HEALTH_INTERVAL_S) -> dict:
+    # timeout: one check took 8 s on a 2-core host at load 20 (Python, Zenoh session, query);
+    # start_period: a success ends it at once, and the logger took over 60 s to start at load 30.
+    return {"test": ["CMD", "fxswarm", "health", role, str(ident), "--quiet"],
+            "interval": f"{interval}s", "timeout": "15s", "retries": 3, "start_period": "300s"}
+
+
+def _with_image(service: str, role_name: str, body: dict, tag: str, context: str, built: dict[str, str]) -> dict:
+    """``body`` with its image: the first service of an image builds it (``built``: image ->
+    that service), the others start after it."""
+    name, dockerfile, base = IMAGES[role_name]
+    head: dict = {"image": image(role_name, tag)}
+    if name not in built:
+        built[name] = service
+        head["build"] = {"context": context, "dockerfile": dockerfile,
+                         "args": {"BASE_IMAGE": var(base, BASE_DEFAULTS[base])}}
+    head["user"] = var("FXSWARM_USER", "fxswarm")
+    body = {**head, **body}
+    if built[name] != service:  # start after the service that builds the image
+        depends = dict(body.get("depends_on", {}))
+        depends.setdefault(built[name], {"condition": "service_started"})
+        body["depends_on"] = depends
+    return body
+
+
 def services(scenario: Scenario, scenario_path: str, context: str, plan: FaultPlan | None = None,
              keys: str | None = None, law_folder: str | None = None) -> dict:
     """The compose document for ``scenario`` as a dict (ordered as it will be written).
@@ -167,19 +192,7 @@ def services(scenario: Scenario, scenario_path: str, context: str, plan: FaultPl
     built: dict[str, str] = {}  # image -> the service that builds it
 
     def with_image(service: str, role_name: str, body: dict) -> dict:
-        name, dockerfile, base = IMAGES[role_name]
-        head: dict = {"image": image(role_name, tag)}
-        if name not in built:
-            built[name] = service
-            head["build"] = {"context": context, "dockerfile": dockerfile,
-                             "args": {"BASE_IMAGE": var(base, BASE_DEFAULTS[base])}}
-        head["user"] = var("FXSWARM_USER", "fxswarm")
-        body = {**head, **body}
-        if built[name] != service:  # start after the service that builds the image
-            depends = dict(body.get("depends_on", {}))
-            depends.setdefault(built[name], {"condition": "service_started"})
-            body["depends_on"] = depends
-        return body
+        return _with_image(service, role_name, body, tag, context, built)
     run = var("FXSWARM_RUN", f"{scenario.name}-compose")
     runs_volume = f"./runs:{IN_CONTAINER_RUNS}"
     volumes = [f"{var('FXSWARM_SCENARIO', scenario_path)}:{IN_CONTAINER_SCENARIO}:ro", runs_volume]
@@ -193,12 +206,6 @@ def services(scenario: Scenario, scenario_path: str, context: str, plan: FaultPl
         role_volumes.append(f"{law_folder}:{IN_CONTAINER_LAW}:ro")
         role_environment["PYTHONPATH"] = IN_CONTAINER_LAW
 
-    def health(role: str, ident: int, interval: int = HEALTH_INTERVAL_S) -> dict:
-        # timeout: one check took 8 s on a 2-core host at load 20 (Python, Zenoh session, query);
-        # start_period: a success ends it at once, and the logger took over 60 s to start at load 30.
-        return {"test": ["CMD", "fxswarm", "health", role, str(ident), "--quiet"],
-                "interval": f"{interval}s", "timeout": "15s", "retries": 3, "start_period": "300s"}
-
     def role(name: str, ident: int, extra: list[str] | None = None, depends: dict | None = None,
              interval: int = HEALTH_INTERVAL_S) -> dict:
         command = [name, IN_CONTAINER_SCENARIO,
@@ -209,7 +216,7 @@ def services(scenario: Scenario, scenario_path: str, context: str, plan: FaultPl
         return {"command": command, "environment": dict(role_environment),
                 "volumes": list(role_volumes),
                 "depends_on": depends or {"router": {"condition": "service_started"}},
-                "healthcheck": health(name, ident, interval)}
+                "healthcheck": _health(name, ident, interval)}
 
     out: dict = {
         "router": with_image("router", "router", {
@@ -219,7 +226,7 @@ def services(scenario: Scenario, scenario_path: str, context: str, plan: FaultPl
             # Writes nothing there, but its image declares the volume: unmounted, every `up` would
             # leave an anonymous volume behind.
             "volumes": [runs_volume],
-            "healthcheck": health("router", 0),
+            "healthcheck": _health("router", 0),
         }),
         "logger": with_image("logger", "logger", role("logger", 0, ["--rerun", var("FXSWARM_RERUN", "file")],
                                                      interval=WAITED_ON_INTERVAL_S)),

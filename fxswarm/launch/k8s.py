@@ -97,43 +97,80 @@ def manifests(sc: Scenario, scenario_text: str, swarm: str, tag: str = "latest",
     (:func:`fxswarm.launch.compose.law_module`), carried in the scenario's ConfigMap onto
     every role's PYTHONPATH, or None.
     """
-    scheme = "tls" if keys is not None else "tcp"
-    router_names = ["router" if i == 0 else f"router-{i}" for i in range(routers)]
-    endpoints = [f"{scheme}/{swarm}-{name}:{ROUTER_PORT}" for name in router_names]
-    connect = endpoints[0]
-    labels = {"app.kubernetes.io/part-of": "fxswarm", "fxswarm/swarm": swarm}
-    run = f"{IN_CONTAINER_RUNS}/{sc.name}"
-    # Kubernetes expands $(NAME) in env values and reduces $$ to $: a literal $ is written $$.
-    plan_json = dumps(plan if plan is not None else plan_of(sc), sc).replace("$", "$$")
-    env = [{"name": "FXSWARM_SWARM", "value": swarm}, {"name": "FXSWARM_CONNECT", "value": connect},
-           {"name": PLAN_ENV, "value": plan_json}, {"name": FAULTS_ENV, "value": ""}]
+    m = _Objects(sc, swarm, tag, clock, plan, keys, law, routers)
+    agent_pod = m.pod("agent", m.command("agent"), ident=AGENT_ID,
+                      extra_env=[{"name": "FXSWARM_ID_FROM_HOSTNAME", "value": "1"}])
+    world_args = m.command("world", ["--tick-timeout", "5", "--wait-timeout", str(WAIT_TIMEOUT_S)])
+    for name in wait_for if wait_for is not None else ["logger/0"]:
+        world_args += ["--wait-for", name]
+    files = {
+        "scenario.yaml": [{"apiVersion": "v1", "kind": "ConfigMap", "metadata": m.meta("scenario", "scenario"),
+                           "data": {"scenario.toml": scenario_text,
+                                    **({f"{law[0]}.py": law[1]} if law is not None else {})}}],
+        "router.yaml": m.routers(),
+        "agents.yaml": [
+            m.service("agent", "agent", headless=True),
+            {"apiVersion": "apps/v1", "kind": "StatefulSet", "metadata": m.meta("agent", "agent"),
+             "spec": {"serviceName": f"{swarm}-agent", "replicas": sc.n, "podManagementPolicy": "Parallel",
+                      "selector": {"matchLabels": {**m.labels, "app.kubernetes.io/component": "agent"}},
+                      "template": agent_pod}},
+        ],
+        "leader.yaml": [m.deployment("leader", m.command("leader"))],
+        "logger.yaml": [m.deployment("logger", m.command("logger", ["--rerun", "file"]))],
+        "world.yaml": [{"apiVersion": "batch/v1", "kind": "Job", "metadata": m.meta("world", "world"),
+                        "spec": {"backoffLimit": 3, "template": m.pod("world", world_args, restart="OnFailure")}}],
+    }
+    if keys is not None:
+        files["secrets.yaml"] = [secret_object(f"{swarm}-keys-{role}", m.meta(f"keys-{role}", role), keys, names)
+                                 for role, names in key_files(sc).items()]
+    return files
 
-    def meta(name: str, role: str) -> dict:
-        return {"name": f"{swarm}-{name}", "labels": {**labels, "app.kubernetes.io/component": role}}
 
-    def probe(role: str, ident: str) -> dict:
+# Ordinal k (the pod name's suffix) is robot k + 1: the entrypoint and the probes compute it.
+AGENT_ID = '$(( ${HOSTNAME##*-} + 1 ))'
+
+
+class _Objects:
+    """The parts every manifest is made of, for one swarm (see :func:`manifests`)."""
+
+    def __init__(self, sc: Scenario, swarm: str, tag: str, clock: str, plan: FaultPlan | None,
+                 keys: Path | None, law: tuple[str, str] | None, routers: int) -> None:
+        self.swarm, self.tag, self.clock, self.keys, self.law, self.n_routers = swarm, tag, clock, keys, law, routers
+        self.scheme = "tls" if keys is not None else "tcp"
+        self.router_names = ["router" if i == 0 else f"router-{i}" for i in range(routers)]
+        self.endpoints = [f"{self.scheme}/{swarm}-{name}:{ROUTER_PORT}" for name in self.router_names]
+        self.labels = {"app.kubernetes.io/part-of": "fxswarm", "fxswarm/swarm": swarm}
+        self.run = f"{IN_CONTAINER_RUNS}/{sc.name}"
+        # Kubernetes expands $(NAME) in env values and reduces $$ to $: a literal $ is written $$.
+        plan_json = dumps(plan if plan is not None else plan_of(sc), sc).replace("$", "$$")
+        self.env = [{"name": "FXSWARM_SWARM", "value": swarm}, {"name": "FXSWARM_CONNECT", "value": self.endpoints[0]},
+                    {"name": PLAN_ENV, "value": plan_json}, {"name": FAULTS_ENV, "value": ""}]
+
+    def meta(self, name: str, role: str) -> dict:
+        return {"name": f"{self.swarm}-{name}", "labels": {**self.labels, "app.kubernetes.io/component": role}}
+
+    def probe(self, role: str, ident: str) -> dict:
         check = f"fxswarm health {role} {ident} --quiet"
         if role == "router":  # its Service routes to it only once it is ready: it asks itself
-            check += f" --connect {scheme}/127.0.0.1:{ROUTER_PORT}"
+            check += f" --connect {self.scheme}/127.0.0.1:{ROUTER_PORT}"
         else:  # a router restarting must not fail every other pod's probes meanwhile
             check += " --router-down-ok"
-        if keys is not None:  # a TLS handshake on a loaded node can outlast health's default 2 s
+        if self.keys is not None:  # a TLS handshake on a loaded node can outlast health's default 2 s
             check += " --timeout 4"
         return {"exec": {"command": ["sh", "-c", check]}, "initialDelaySeconds": 20, "periodSeconds": 10,
                 "timeoutSeconds": 15, "failureThreshold": 6}
 
-    def pod(role: str, args: list[str], ident: str = "0", extra_env: list[dict] | None = None,
-            restart: str | None = None) -> dict:
-        container = {
+    def container(self, role: str, args: list[str], ident: str, extra_env: list[dict] | None) -> dict:
+        return {
             "name": role,
-            "image": image(role, tag),
+            "image": image(role, self.tag),
             "imagePullPolicy": "IfNotPresent",
             "args": args,
-            "env": env + (extra_env or []),
+            "env": self.env + (extra_env or []),
             # A slow start (imports, the router not up yet) is not a failure: up to 300 s of it.
-            "startupProbe": {**probe(role, ident), "initialDelaySeconds": 5, "failureThreshold": 30},
-            "readinessProbe": probe(role, ident),
-            "livenessProbe": probe(role, ident),
+            "startupProbe": {**self.probe(role, ident), "initialDelaySeconds": 5, "failureThreshold": 30},
+            "readinessProbe": self.probe(role, ident),
+            "livenessProbe": self.probe(role, ident),
             "resources": {"requests": {"cpu": "50m", "memory": "64Mi"}},
             "securityContext": {"allowPrivilegeEscalation": False,
                                 "capabilities": {"drop": ["ALL"]}},
@@ -142,6 +179,11 @@ def manifests(sc: Scenario, scenario_text: str, swarm: str, tag: str = "latest",
                              {"name": "runs", "mountPath": IN_CONTAINER_RUNS},
                              {"name": "tmp", "mountPath": "/tmp"}],
         }
+
+    def pod(self, role: str, args: list[str], ident: str = "0", extra_env: list[dict] | None = None,
+            restart: str | None = None) -> dict:
+        container = self.container(role, args, ident, extra_env)
+        law = self.law
         if role == "router":
             container["ports"] = [{"name": "zenoh", "containerPort": ROUTER_PORT, "protocol": "TCP"}]
         elif law is not None:  # every role loads the scenario, and so imports its law
@@ -151,19 +193,19 @@ def manifests(sc: Scenario, scenario_text: str, swarm: str, tag: str = "latest",
         spec = {
             "securityContext": {"runAsNonRoot": True, "runAsUser": USER_ID, "runAsGroup": USER_ID, "fsGroup": USER_ID},
             "containers": [container],
-            "volumes": [{"name": "scenario", "configMap": {"name": f"{swarm}-scenario"}},
+            "volumes": [{"name": "scenario", "configMap": {"name": f"{self.swarm}-scenario"}},
                         {"name": "runs", "emptyDir": {}}, {"name": "tmp", "emptyDir": {}}],
         }
-        if keys is not None:
-            secure_pod(spec, container, role)
+        if self.keys is not None:
+            self.secure_pod(spec, container, role)
         if restart:
             spec["restartPolicy"] = restart
-        return {"metadata": {"labels": {**labels, "app.kubernetes.io/component": role}}, "spec": spec}
+        return {"metadata": {"labels": {**self.labels, "app.kubernetes.io/component": role}}, "spec": spec}
 
-    def secure_pod(spec: dict, container: dict, role: str) -> None:
+    def secure_pod(self, spec: dict, container: dict, role: str) -> None:
         """Mount the role's Secret at /run/secrets; the agent's through an init container."""
         secret = {"name": "keys-all" if role == "agent" else "keys",
-                  "secret": {"secretName": f"{swarm}-keys-{role}", "defaultMode": 0o440}}
+                  "secret": {"secretName": f"{self.swarm}-keys-{role}", "defaultMode": 0o440}}
         spec["volumes"].append(secret)
         if role != "agent":
             container["env"] = container["env"] + [{"name": "FXSWARM_SECURE", "value": SECRETS_DIR}]
@@ -183,66 +225,41 @@ def manifests(sc: Scenario, scenario_text: str, swarm: str, tag: str = "latest",
         container["env"] = container["env"] + [{"name": "FXSWARM_SECURE", "value": AGENT_KEYS_DIR}]
         container["volumeMounts"].append({**own, "readOnly": True})
 
-    def command(role: str, extra: list[str] | None = None) -> list[str]:
-        every = [a for e in endpoints for a in ("--connect", e)]  # several: the next when one is lost
+    def command(self, role: str, extra: list[str] | None = None) -> list[str]:
+        every = [a for e in self.endpoints for a in ("--connect", e)]  # several: the next when one is lost
         return [role, IN_CONTAINER_SCENARIO, "--mode", "client", *every, "--no-multicast",
-                "--swarm", swarm, "--clock", clock, "--out", run, *(extra or [])]
+                "--swarm", self.swarm, "--clock", self.clock, "--out", self.run, *(extra or [])]
 
-    def deployment(role: str, args: list[str], name: str | None = None, ident: str = "0",
+    def deployment(self, role: str, args: list[str], name: str | None = None, ident: str = "0",
                    extra_labels: dict | None = None) -> dict:
-        selector = {**labels, "app.kubernetes.io/component": role, **(extra_labels or {})}
-        template = pod(role, args, ident)
+        selector = {**self.labels, "app.kubernetes.io/component": role, **(extra_labels or {})}
+        template = self.pod(role, args, ident)
         template["metadata"]["labels"].update(extra_labels or {})
-        return {"apiVersion": "apps/v1", "kind": "Deployment", "metadata": meta(name or role, role),
+        return {"apiVersion": "apps/v1", "kind": "Deployment", "metadata": self.meta(name or role, role),
                 "spec": {"replicas": 1, "selector": {"matchLabels": selector}, "template": template}}
 
-    def service(name: str, role: str, headless: bool = False, extra_labels: dict | None = None) -> dict:
-        spec: dict = {"selector": {**labels, "app.kubernetes.io/component": role, **(extra_labels or {})},
+    def service(self, name: str, role: str, headless: bool = False, extra_labels: dict | None = None) -> dict:
+        spec: dict = {"selector": {**self.labels, "app.kubernetes.io/component": role, **(extra_labels or {})},
                       "ports": [{"name": "zenoh", "port": ROUTER_PORT, "targetPort": ROUTER_PORT, "protocol": "TCP"}]}
         if headless:
             spec["clusterIP"] = "None"
-        return {"apiVersion": "v1", "kind": "Service", "metadata": meta(name, role), "spec": spec}
+        return {"apiVersion": "v1", "kind": "Service", "metadata": self.meta(name, role), "spec": spec}
 
-    agent_selector = {**labels, "app.kubernetes.io/component": "agent"}
-    # Ordinal k (the pod name's suffix) is robot k + 1: the entrypoint and the probes compute it.
-    agent_id = '$(( ${HOSTNAME##*-} + 1 ))'
-    agent_pod = pod("agent", command("agent"), ident=agent_id,
-                    extra_env=[{"name": "FXSWARM_ID_FROM_HOSTNAME", "value": "1"}])
-    world_args = command("world", ["--tick-timeout", "5", "--wait-timeout", str(WAIT_TIMEOUT_S)])
-    for name in wait_for if wait_for is not None else ["logger/0"]:
-        world_args += ["--wait-for", name]
-    router_objects = []
-    for i, name in enumerate(router_names):
-        others = [a for j, e in enumerate(endpoints) if j != i for a in ("--connect", e)]  # meshed
-        args = ["router", "--listen", f"{scheme}/0.0.0.0:{ROUTER_PORT}", "--id", str(i), *others, "--swarm", swarm,
-                "--scenario", IN_CONTAINER_SCENARIO]
-        own = {"fxswarm/router": str(i)}  # each router's Service reaches its own pod only
-        workload = deployment("router", args, name, str(i), own)
-        if routers > 1:  # the routers on different nodes where there are several
-            workload["spec"]["template"]["spec"]["topologySpreadConstraints"] = [{
-                "maxSkew": 1, "topologyKey": "kubernetes.io/hostname", "whenUnsatisfiable": "DoNotSchedule",
-                "labelSelector": {"matchLabels": {**labels, "app.kubernetes.io/component": "router"}}}]
-        router_objects += [workload, service(name, "router", extra_labels=own)]
-    files = {
-        "scenario.yaml": [{"apiVersion": "v1", "kind": "ConfigMap", "metadata": meta("scenario", "scenario"),
-                           "data": {"scenario.toml": scenario_text,
-                                    **({f"{law[0]}.py": law[1]} if law is not None else {})}}],
-        "router.yaml": router_objects,
-        "agents.yaml": [
-            service("agent", "agent", headless=True),
-            {"apiVersion": "apps/v1", "kind": "StatefulSet", "metadata": meta("agent", "agent"),
-             "spec": {"serviceName": f"{swarm}-agent", "replicas": sc.n, "podManagementPolicy": "Parallel",
-                      "selector": {"matchLabels": agent_selector}, "template": agent_pod}},
-        ],
-        "leader.yaml": [deployment("leader", command("leader"))],
-        "logger.yaml": [deployment("logger", command("logger", ["--rerun", "file"]))],
-        "world.yaml": [{"apiVersion": "batch/v1", "kind": "Job", "metadata": meta("world", "world"),
-                        "spec": {"backoffLimit": 3, "template": pod("world", world_args, restart="OnFailure")}}],
-    }
-    if keys is not None:
-        files["secrets.yaml"] = [secret_object(f"{swarm}-keys-{role}", meta(f"keys-{role}", role), keys, names)
-                                 for role, names in key_files(sc).items()]
-    return files
+    def routers(self) -> list[dict]:
+        """Each router's Deployment and Service, the routers meshed (and spread over nodes)."""
+        objects = []
+        for i, name in enumerate(self.router_names):
+            others = [a for j, e in enumerate(self.endpoints) if j != i for a in ("--connect", e)]  # meshed
+            args = ["router", "--listen", f"{self.scheme}/0.0.0.0:{ROUTER_PORT}", "--id", str(i), *others,
+                    "--swarm", self.swarm, "--scenario", IN_CONTAINER_SCENARIO]
+            own = {"fxswarm/router": str(i)}  # each router's Service reaches its own pod only
+            workload = self.deployment("router", args, name, str(i), own)
+            if self.n_routers > 1:  # the routers on different nodes where there are several
+                workload["spec"]["template"]["spec"]["topologySpreadConstraints"] = [{
+                    "maxSkew": 1, "topologyKey": "kubernetes.io/hostname", "whenUnsatisfiable": "DoNotSchedule",
+                    "labelSelector": {"matchLabels": {**self.labels, "app.kubernetes.io/component": "router"}}}]
+            objects += [workload, self.service(name, "router", extra_labels=own)]
+        return objects
 
 
 def key_files(sc: Scenario) -> dict[str, list[str]]:

@@ -107,6 +107,45 @@ def world_extra(wait_for: list[str]) -> list[str]:
     return out
 
 
+def _health(test: list[str]) -> dict:
+    return {"test": test, "interval": f"{HEALTH_INTERVAL_S}s", "timeout": "15s", "retries": 3,
+            "start_period": "300s"}
+
+
+def _service(role: str, command: list[str], condition: str, tag: str, env: dict, scheme: str, law: str | None,
+             ident: str = "0", replicas: int = 1, extra_env: dict | None = None) -> dict:
+    """One service of the stack (see :func:`stack_document`): image, command, health check, restarts."""
+    # A router restarting (Swarm restarts it) must not fail every other task's check meanwhile.
+    check = (["CMD-SHELL", f'fxswarm health {role} "$$FXSWARM_ID" --quiet --router-down-ok'] if role == "agent"
+             else ["CMD", "fxswarm", "health", role, ident, "--quiet",
+                   *(["--router-down-ok"] if role != "router" else [])])
+    if role == "router":
+        # Swarm puts a task in its service's DNS only once it is healthy: the router asks itself.
+        check += ["--connect", f"{scheme}/127.0.0.1:{ROUTER_PORT}"]
+    out = {
+        "image": image(role, tag),
+        "command": command,
+        "environment": {**env, **(extra_env or {})},
+        "networks": [NETWORK],
+        "healthcheck": _health(check),
+        "deploy": {
+            "replicas": replicas,
+            "endpoint_mode": "dnsrr",
+            # on-failure: a crashed or killed process comes back (a new task, the same slot);
+            # one that finished its run (exit 0) stays down.
+            "restart_policy": {"condition": condition, "delay": "1s"},
+        },
+    }
+    out["configs"] = [{"source": "scenario", "target": IN_CONTAINER_SCENARIO, "mode": 0o444}]
+    if law is not None and role != "router":  # a user's law module: a config on every role's PYTHONPATH
+        out["configs"].append({"source": "law", "target": f"{IN_CONTAINER_LAW}/{law}.py", "mode": 0o444})
+        out["environment"]["PYTHONPATH"] = IN_CONTAINER_LAW
+    # The router too: the images declare the volume, and a task without it mounted leaves an
+    # anonymous volume on its node each time it starts.
+    out["volumes"] = [{"type": "volume", "source": "runs", "target": IN_CONTAINER_RUNS}]
+    return out
+
+
 def stack_document(sc: Scenario, swarm: str, wait_for: list[str], plan: FaultPlan | None = None,
                    keys: str | None = None, law: str | None = None, routers: int = 1) -> dict:
     """The stack file for ``sc`` as a dict (YAML-ready).
@@ -125,41 +164,9 @@ def stack_document(sc: Scenario, swarm: str, wait_for: list[str], plan: FaultPla
     env = {"FXSWARM_SWARM": swarm, PLAN_ENV: plan_json, FAULTS_ENV: var(FAULTS_ENV, ""),
            "FXSWARM_CONNECT": f"{scheme}/router:{ROUTER_PORT}"}
 
-    def health(test: list[str]) -> dict:
-        return {"test": test, "interval": f"{HEALTH_INTERVAL_S}s", "timeout": "15s", "retries": 3,
-                "start_period": "300s"}
-
     def service(role: str, command: list[str], condition: str, ident: str = "0", replicas: int = 1,
                 extra_env: dict | None = None) -> dict:
-        # A router restarting (Swarm restarts it) must not fail every other task's check meanwhile.
-        check = (["CMD-SHELL", f'fxswarm health {role} "$$FXSWARM_ID" --quiet --router-down-ok'] if role == "agent"
-                 else ["CMD", "fxswarm", "health", role, ident, "--quiet",
-                       *(["--router-down-ok"] if role != "router" else [])])
-        if role == "router":
-            # Swarm puts a task in its service's DNS only once it is healthy: the router asks itself.
-            check += ["--connect", f"{scheme}/127.0.0.1:{ROUTER_PORT}"]
-        out = {
-            "image": image(role, tag),
-            "command": command,
-            "environment": {**env, **(extra_env or {})},
-            "networks": [NETWORK],
-            "healthcheck": health(check),
-            "deploy": {
-                "replicas": replicas,
-                "endpoint_mode": "dnsrr",
-                # on-failure: a crashed or killed process comes back (a new task, the same slot);
-                # one that finished its run (exit 0) stays down.
-                "restart_policy": {"condition": condition, "delay": "1s"},
-            },
-        }
-        out["configs"] = [{"source": "scenario", "target": IN_CONTAINER_SCENARIO, "mode": 0o444}]
-        if law is not None and role != "router":  # a user's law module: a config on every role's PYTHONPATH
-            out["configs"].append({"source": "law", "target": f"{IN_CONTAINER_LAW}/{law}.py", "mode": 0o444})
-            out["environment"]["PYTHONPATH"] = IN_CONTAINER_LAW
-        # The router too: the images declare the volume, and a task without it mounted leaves an
-        # anonymous volume on its node each time it starts.
-        out["volumes"] = [{"type": "volume", "source": "runs", "target": IN_CONTAINER_RUNS}]
-        return out
+        return _service(role, command, condition, tag, env, scheme, law, ident, replicas, extra_env)
 
     services = {}
     for i in range(routers):

@@ -88,14 +88,20 @@ def write_figures(run: Path, summary: dict, d: float) -> list[Path]:
 
 def main(args: argparse.Namespace) -> int:
     from fxswarm.core.scenario import ScenarioError
-    from fxswarm.logger.replay import scenario_of_run
     from fxswarm.report.index import write_index
+    from fxswarm.runtime.campaign_folder import FolderError, is_campaign
+    from fxswarm.runtime.output import read_summary, scenario_of_run
 
     run = Path(args.dir)
-    if (run / "campaign.json").is_file():  # a campaign's folder (`fxswarm campaign`)
+    if is_campaign(run):  # a campaign's folder (`fxswarm campaign`)
         from fxswarm.report.campaign import write_campaign_report
 
-        for path in write_campaign_report(run):
+        try:
+            written = write_campaign_report(run)
+        except FolderError as exc:
+            print(f"fxswarm report: {exc}", file=sys.stderr)
+            return 2
+        for path in written:
             print(f"wrote {path}")
         return 0
     for name in ("trajectory.npz", "summary.json"):
@@ -103,7 +109,7 @@ def main(args: argparse.Namespace) -> int:
             print(f"fxswarm report: {run / name}: no such file (expected a run folder from "
                   "`fxswarm sim` or `fxswarm run`)", file=sys.stderr)
             return 2
-    summary = json.loads((run / "summary.json").read_text())
+    summary = read_summary(run)
     try:
         sc = scenario_of_run(run)
     except (FileNotFoundError, ScenarioError) as exc:

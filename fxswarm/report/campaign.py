@@ -9,30 +9,16 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from fxswarm.report.figures import _save, plt
 from fxswarm.logger.style import robot_hex
+from fxswarm.runtime.campaign_folder import read_result, read_runs
 
 MAP = "success_map.png"
 DISTRIBUTIONS = "distributions.png"
-
-
-def read_runs(folder: Path) -> list[dict]:
-    """The whole lines of ``runs.jsonl`` (a torn last line is left out)."""
-    path = folder / "runs.jsonl"
-    if not path.is_file():
-        return []
-    out = []
-    for line in path.read_text().splitlines():
-        try:
-            out.append(json.loads(line))
-        except ValueError:
-            continue
-    return out
 
 
 def map_axes(doc: dict) -> list[str]:
@@ -123,8 +109,8 @@ def _fmt(x, form: str = "{:.2f}") -> str:
 
 def write_campaign_report(folder: Path) -> list[Path]:
     """Figures and ``index.md`` of a campaign folder; returns the paths written."""
-    doc = json.loads((folder / "campaign.json").read_text())
-    runs = read_runs(folder)
+    doc = read_result(folder)
+    runs = list(read_runs(folder).values())
     figures = [success_map(doc, folder / MAP), distributions(doc, runs, folder / DISTRIBUTIONS)]
     t = doc["totals"]
     c = doc["criteria"]
@@ -138,7 +124,8 @@ def write_campaign_report(folder: Path) -> list[Path]:
         + ", ".join(f"`{k}` = {', '.join(v)}" for k, v in spec["grid"].items())
         + f"; laws: {', '.join(doc['laws'])}; {spec['seeds']} seeds per cell (campaign seed {spec['seed']}).", "",
         f"A run succeeds when its closest approach to any object stays above {c['min_distance_m']:g} m, the "
-        f"formation settles {settle}, and its final formation error is under {c['final_error_m']:g} m.", "",
+        f"formation settles {settle}, its final formation error is under {c['final_error_m']:g} m, and its "
+        "law never failed.", "",
         "| law | cell | runs | successes | success rate (95 % Wilson) | settling median / p95 (s) | unsettled "
         "| min distance p05 (m) | errors |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",

@@ -1,4 +1,7 @@
-"""Writing a run's folder: ``summary.json`` and ``trajectory.npz``."""
+"""A run's folder (``fxswarm sim``, ``fxswarm run``, ``fxswarm attach``): its writer and its one
+reader. ``summary.json`` (the numbers, and ``source``: the scenario file), ``trajectory.npz``
+(every tick), ``processes/<role>-<id>.json`` (each role process's counters).
+"""
 
 from __future__ import annotations
 
@@ -9,6 +12,10 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from fxswarm.core.scenario import Scenario, load
+from fxswarm.faults.summary import add_processes
+from fxswarm.runtime.files import write_atomic
 
 
 def prepare_run_folder(out_dir: str | Path, who: str) -> Path:
@@ -39,10 +46,27 @@ def write_run(out_dir: str | Path, summary: dict, trajectory: dict[str, np.ndarr
 
 
 def write_summary(out_dir: str | Path, summary: dict) -> None:
+    write_atomic(Path(out_dir) / "summary.json", json.dumps(summary, indent=2) + "\n")
+
+
+def read_summary(out_dir: str | Path) -> dict | None:
+    """The run's ``summary.json`` (None: there is none yet)."""
     path = Path(out_dir) / "summary.json"
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(summary, indent=2) + "\n")
-    tmp.replace(path)  # readers never see half a summary
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def merge_summary(out_dir: str | Path, process_events: list[dict] | None = None,
+                  extra: dict | None = None) -> dict | None:
+    """The world's ``summary.json`` with every role process's counters (once all have stopped),
+    the process faults a launcher sent (:func:`~fxswarm.faults.summary.add_processes`) and
+    ``extra`` (the launcher's own facts); written back and returned (None: no summary)."""
+    summary = read_summary(out_dir)
+    if summary is None:
+        return None
+    add_processes(summary, read_process_counters(out_dir), process_events)
+    summary.update(extra or {})
+    write_summary(out_dir, summary)
+    return summary
 
 
 def read_process_counters(out_dir: str | Path, since: float | None = None) -> dict[str, dict]:
@@ -63,3 +87,19 @@ def read_process_counters(out_dir: str | Path, since: float | None = None) -> di
 def load_trajectory(out_dir: str | Path) -> dict[str, np.ndarray]:
     with np.load(Path(out_dir) / "trajectory.npz") as data:
         return {k: data[k] for k in data.files}
+
+
+def scenario_of_run(run_dir: str | Path) -> Scenario:
+    """The scenario named by ``summary.json``'s ``source`` (tried as given, then beside the run's parents)."""
+    run = Path(run_dir)
+    summary_path = run / "summary.json"
+    try:
+        source = json.loads(summary_path.read_text())["source"]
+    except (OSError, ValueError, KeyError) as exc:
+        raise FileNotFoundError(f"{summary_path}: expected a run summary with a 'source' field ({exc})") from None
+    candidates = [Path(source)] + [parent / source for parent in run.resolve().parents]
+    for path in candidates:
+        if path.is_file():
+            return load(path)
+    raise FileNotFoundError(f"{summary_path}: scenario {source!r} not found (looked in the working directory "
+                            "and the run folder's parents)")

@@ -34,6 +34,7 @@ from fxswarm.faults.apply import process_counters, wrap_for_process
 from fxswarm.faults.plan import CLI_HELP as FAULT_HELP
 from fxswarm.faults.plan import PLAN_ENV, FaultPlan
 from fxswarm.runtime.connectivity import Connectivity
+from fxswarm.runtime.files import write_atomic
 from fxswarm.runtime.numbers import non_negative, positive
 from fxswarm.runtime.output import prepare_run_folder
 from fxswarm.runtime.config import process_plan_or_exit
@@ -315,11 +316,9 @@ class RoleProcess:
             return
         folder = Path(self.args.out) / "processes"
         data = {"role": self.role, "id": self.ident, "pid": os.getpid(), **self.counters(), **(extra or {})}
-        tmp = folder / f".{self.role}-{self.ident}.json.tmp"
         try:
             folder.mkdir(parents=True, exist_ok=True)
-            tmp.write_text(json.dumps(data, indent=2) + "\n")
-            tmp.replace(folder / f"{self.role}-{self.ident}.json")
+            write_atomic(folder / f"{self.role}-{self.ident}.json", json.dumps(data, indent=2) + "\n")
         except OSError as exc:
             print(f"fxswarm {self.role}: could not write its counters to {folder}: {exc}", file=sys.stderr)
 

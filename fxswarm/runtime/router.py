@@ -34,7 +34,7 @@ from fxswarm.core.bus import SCENARIO, alive_topic, prefix
 from fxswarm.runtime.numbers import swarm_name
 from fxswarm.runtime.process import PARENT_ENV
 from fxswarm.runtime.tls import SECURE_ENV, KeyFileError, TlsFiles, checked, load_access, tls_endpoints
-from fxswarm.runtime.zenoh_bus import RECONNECT
+from fxswarm.runtime.zenoh_bus import RECONNECT_RETRY
 
 DEFAULT_LISTEN = "tcp/0.0.0.0:7447"
 DEFAULT_SECURE_LISTEN = "tls/0.0.0.0:7447"
@@ -65,25 +65,29 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="log every message the rules refuse (first per process, action and key) and count them")
 
 
-def router_config(listen: list[str], multicast: bool, tls: TlsFiles | None = None,
-                  access: dict | None = None, connect: list[str] = ()) -> zenoh.Config:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"router"')
-    conf.insert_json5("listen/endpoints", "[" + ",".join(f'"{e}"' for e in listen) + "]")
+def router_settings(listen: list[str], multicast: bool = False, tls: TlsFiles | None = None,
+                    access: dict | None = None, connect: list[str] = ()) -> dict:
+    """A router's Zenoh configuration as plain data: what ``fxswarm router`` opens its session
+    with and what the launcher writes as the official router's (zenohd) file, built here only."""
+    conf: dict = {"mode": "router", "listen": {"endpoints": list(listen)},
+                  "scouting": {"multicast": {"enabled": multicast}}}
     if connect:
-        conf.insert_json5("connect/endpoints", "[" + ",".join(f'"{e}"' for e in connect) + "]")
         # Routers on several hosts start in any order: a peer router not up yet is retried in
         # the background (no time limit, no exit on failure). A limit of 0 would mean a single
         # attempt and no retry, so a router started before its peer never meshed with it.
-        conf.insert_json5("connect/timeout_ms", "-1")
-        conf.insert_json5("connect/exit_on_failure", "false")
-        conf.insert_json5("connect/retry", RECONNECT)  # a restarted peer router is met again at once
-    conf.insert_json5("scouting/multicast/enabled", "true" if multicast else "false")
+        # The retry period: a restarted peer router is met again at once.
+        conf["connect"] = {"endpoints": list(connect), "timeout_ms": -1, "exit_on_failure": False,
+                           "retry": dict(RECONNECT_RETRY)}
     if tls is not None:
-        tls.insert_into(conf, listen=True)
+        conf["transport"] = {"link": {"tls": tls.zenoh_tls(listen=True)}}
     if access is not None:
-        conf.insert_json5("access_control", json.dumps(access))
+        conf["access_control"] = access
     return conf
+
+
+def router_config(listen: list[str], multicast: bool, tls: TlsFiles | None = None,
+                  access: dict | None = None, connect: list[str] = ()) -> zenoh.Config:
+    return zenoh.Config.from_json5(json.dumps(router_settings(listen, multicast, tls, access, connect)))
 
 
 # --- audit: the access-control interceptor's own decisions, from Zenoh's log ------------------

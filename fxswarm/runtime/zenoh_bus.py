@@ -7,7 +7,7 @@ callbacks enqueue the raw bytes and ``poll`` decodes, validates and hands
 them to the handlers on the calling thread. ``poll(timeout, stay=True)``
 (lock-step loops) instead lets the callback thread run the handler itself
 while the caller sleeps: one thread hand-over less per message, which is
-most of what a message costs a Python process (benchmarks/bench_transport.py).
+most of what a message costs a Python process (benchmarks/studies/bench_transport.py).
 Liveliness changes always go through the queue, so they end a ``poll`` at
 once and a loop reacts to a departure without waiting out its timeout.
 
@@ -105,7 +105,8 @@ class ZenohOptions:
         return out
 
 
-RECONNECT = "{period_init_ms: 100, period_max_ms: 1000, period_increase_factor: 2}"
+RECONNECT_RETRY = {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2}
+RECONNECT = json.dumps(RECONNECT_RETRY)  # JSON is JSON5
 
 
 def _json_list(items) -> str:

@@ -36,6 +36,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from fxswarm.core.scenario import Scenario
+from fxswarm.runtime.files import write_atomic
 from fxswarm.runtime.numbers import positive_int
 from fxswarm.runtime.tls import KeyFileError, files_for, check
 from fxswarm.security.policy import access_control, process_names
@@ -122,12 +123,7 @@ def _general_name(text: str) -> x509.GeneralName:
 
 def _write(path: Path, data: bytes, private: bool) -> None:
     """Write atomically; a private key is created mode 0600 (never readable by others, not even briefly)."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.unlink(missing_ok=True)
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600 if private else 0o644)
-    with os.fdopen(fd, "wb") as f:
-        f.write(data)
-    os.replace(tmp, path)
+    write_atomic(path, data, private)
 
 
 def _key_pem(key) -> bytes:

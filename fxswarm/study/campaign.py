@@ -142,7 +142,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="local worker processes (default: the machine's cores)")
     p.add_argument("--executor", default="local", metavar="local|dask://HOST:PORT",
                    help="where the runs go: local worker processes, or a Dask distributed scheduler")
-    g = p.add_argument_group("success criteria (a run succeeds when it meets all three)")
+    g = p.add_argument_group("success criteria (a run succeeds when it meets these three and its law never failed)")
     g.add_argument("--min-distance", type=positive, default=None, metavar="M",
                    help="no collision: the closest approach to any object stays above M m "
                         "(default: half the scenario's repulsive radius d)")

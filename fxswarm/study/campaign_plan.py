@@ -24,6 +24,7 @@ from fxswarm.core.laws import LawError, resolve_law
 from fxswarm.core.scenario import Scenario, ScenarioError, ScenarioWarning, parse
 from fxswarm.core.tomltext import dump_toml
 from fxswarm.faults.plan import resolve
+from fxswarm.runtime.files import write_atomic
 
 #: ``{name}`` in a fault template: filled by the grid axis ``name``.
 PLACEHOLDER = re.compile(r"\{([A-Za-z_][A-Za-z0-9_]*)\}")
@@ -283,6 +284,4 @@ def write_scenarios(plan: Plan) -> None:
         if tomllib.loads(text) != table:
             raise CampaignError(f"{path}: the scenario does not survive writing as TOML")
         if not p.is_file() or p.read_text() != text:
-            tmp = p.with_suffix(".toml.tmp")
-            tmp.write_text(text)
-            tmp.replace(p)
+            write_atomic(p, text)

@@ -1,5 +1,6 @@
-"""A campaign's folder: ``spec.json`` (which campaign it holds), ``runs.jsonl`` (one line per
-finished run, appended as each finishes) and ``campaign.json`` (the statistics per cell and law).
+"""A campaign's folder, written: ``spec.json`` (which campaign it holds), ``runs.jsonl`` (one
+line per finished run, appended as each finishes) and ``campaign.json`` (the statistics per cell
+and law). Read by :mod:`fxswarm.runtime.campaign_folder`, the one reader of that format.
 
 ``runs.jsonl`` is the only place results live: each line is written with one ``write`` on a
 file opened for appending and synced, so a killed campaign leaves whole lines (a torn last
@@ -16,11 +17,11 @@ from statistics import NormalDist
 
 import numpy as np
 
+from fxswarm.runtime import campaign_folder
+from fxswarm.runtime.campaign_folder import RESULT, RUNS, SPEC, FolderError
+from fxswarm.runtime.files import write_atomic
 from fxswarm.study.campaign_plan import CampaignError, Plan
 
-SPEC = "spec.json"
-RUNS = "runs.jsonl"
-RESULT = "campaign.json"
 #: Quantiles of the minimum distance reported per cell.
 DISTANCE_QUANTILES = (0.05, 0.5)
 
@@ -41,33 +42,16 @@ def claim_folder(out: Path, plan: Plan) -> None:
             raise CampaignError(f"{out} holds another campaign's runs ({diff}); use another --out, or the "
                                 "same options to finish that one")
     else:
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(plan.spec, indent=2) + "\n")
-        tmp.replace(path)
+        write_atomic(path, json.dumps(plan.spec, indent=2) + "\n")
 
 
 def read_runs(out: Path, fingerprint: str) -> dict[str, dict]:
     """The runs already in ``out/runs.jsonl`` by id. A torn last line is cut off the file; a
     line of another campaign is refused."""
-    path = out / RUNS
-    if not path.is_file():
-        return {}
-    data = path.read_bytes()
-    whole = data[: data.rfind(b"\n") + 1]
-    if len(whole) != len(data):  # a line cut short: the run it held is run again
-        with open(path, "r+b") as fh:
-            fh.truncate(len(whole))
-    runs: dict[str, dict] = {}
-    for number, line in enumerate(whole.decode().splitlines(), 1):
-        try:
-            record = json.loads(line)
-        except ValueError:
-            raise CampaignError(f"{path}:{number}: expected a JSON line, got {line[:60]!r}") from None
-        if record.get("campaign") != fingerprint:
-            raise CampaignError(f"{path}:{number}: a run of another campaign ({record.get('campaign')!r}, "
-                                f"expected {fingerprint!r}); use another --out")
-        runs.setdefault(record["id"], record)
-    return runs
+    try:
+        return campaign_folder.read_runs(out, fingerprint, repair=True)
+    except FolderError as exc:
+        raise CampaignError(str(exc)) from None
 
 
 class RunLog:
@@ -164,8 +148,4 @@ def campaign_document(plan: Plan, records: dict[str, dict]) -> dict:
 
 
 def write_document(out: Path, doc: dict) -> Path:
-    path = out / RESULT
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(doc, indent=2) + "\n")
-    tmp.replace(path)
-    return path
+    return write_atomic(out / RESULT, json.dumps(doc, indent=2) + "\n")

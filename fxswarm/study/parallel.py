@@ -94,12 +94,16 @@ def _pool_completed(fn, cases, workers) -> Iterator[tuple[int, dict]]:
                 yield pending.pop(future), result
     finally:
         # Terminate, not wait: Ctrl-C must not sit out the runs in flight (their results are lost
-        # either way, and a rerun of a campaign runs them again).
+        # either way, and a rerun of a campaign runs them again). Only this pool's workers: the
+        # caller's other children are not ours to end. The pool forgets them on shutdown, so they
+        # are taken first (Python 3.14 has pool.terminate_workers(); before it, the pool's own table).
+        workers = list((pool._processes or {}).values())
         pool.shutdown(wait=False, cancel_futures=True)
-        for child in multiprocessing.active_children():
-            child.terminate()
-        for child in multiprocessing.active_children():
-            child.join(5.0)
+        for worker in workers:
+            if worker.is_alive():
+                worker.terminate()
+        for worker in workers:
+            worker.join(5.0)
 
 
 def _worker_started() -> None:

@@ -10,15 +10,16 @@ runs with the same seed:
     the case whenever the delay alone keeps the formation above it), and recovery_excess_s,
     the time until robot 2's error is back within the tolerance of its error in the same run
     without the crash (the crash's own cost, separate from what the links cost everyone).
-Writes plot-ready JSON to benchmarks/results/faults.json: axes, then per compensation one 2-D grid
+Writes plot-ready JSON to benchmarks/studies/results/faults.json: axes, then per compensation one 2-D grid
 per metric (rows: drop, columns: delay), and the raw rows.
 
-    .venv/bin/python benchmarks/bench_faults.py [--quick] [--workers 2] [--compensation NAME]
+    .venv/bin/python benchmarks/studies/bench_faults.py [--quick] [--workers 2] [--compensation NAME]
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import json
 import os
 import time
@@ -30,9 +31,11 @@ import numpy as np
 
 from fxswarm.core.scenario import DELAY_COMPENSATIONS
 
+# The maintained benchmarks this study imports (bench_io, ...) sit one folder up.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench_io import machine, write_json  # a sibling script
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 BASE = ROOT / "configs" / "paper-fast.toml"
 DROPS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6)
 DELAYS = (0.0, 0.05, 0.1, 0.15, 0.2)  # s
@@ -83,7 +86,7 @@ def main() -> None:
     p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
     p.add_argument("--compensation", choices=DELAY_COMPENSATIONS, action="append",
                    help="only this delay compensation (repeatable; default: all)")
-    p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "faults.json"))
+    p.add_argument("--out", default=str(ROOT / "benchmarks" / "studies" / "results" / "faults.json"))
     args = p.parse_args()
     drops = (0.0, 0.3, 0.6) if args.quick else DROPS
     delays = (0.0, 0.1, 0.2) if args.quick else DELAYS

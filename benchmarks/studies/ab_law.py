@@ -1,7 +1,7 @@
 """A/B of the law API's cost (issue 27): the paper's law through the API against the tree before it.
 
-    python benchmarks/ab_law.py BASELINE_TREE [--rounds 5] [--lockstep-ticks 2000]
-        [--out benchmarks/results/ab_law.json]
+    python benchmarks/studies/ab_law.py BASELINE_TREE [--rounds 5] [--lockstep-ticks 2000]
+        [--out benchmarks/studies/results/ab_law.json]
 
 Two figures, each side run with its own tree's venv and code, in rounds that alternate
 the trees (A B, then B A):
@@ -32,10 +32,12 @@ import sys
 import time
 from pathlib import Path
 
+# The maintained benchmarks this study imports (bench_io, ...) sit one folder up.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import ab_runtime  # a sibling script: the lock-step measurement and its floor, per tree
 from bench_io import machine, write_json
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 SIM = """
 import json, os, time
@@ -134,12 +136,12 @@ def main() -> int:
     p.add_argument("baseline", type=Path, help="another checkout with its own .venv")
     p.add_argument("--rounds", type=int, default=5)
     p.add_argument("--lockstep-ticks", type=int, default=2000)
-    p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "ab_law.json"))
+    p.add_argument("--out", default=str(ROOT / "benchmarks" / "studies" / "results" / "ab_law.json"))
     p.add_argument("--from-log", type=Path, default=None, metavar="LOG",
                    help="no runs: summarise the whole rounds a stopped run wrote to its stderr LOG")
     args = p.parse_args()
     trees = {"baseline": args.baseline.resolve(), "this": ROOT}
-    command = f"python benchmarks/ab_law.py {args.baseline} --rounds {args.rounds} --lockstep-ticks {args.lockstep_ticks}"
+    command = f"python benchmarks/studies/ab_law.py {args.baseline} --rounds {args.rounds} --lockstep-ticks {args.lockstep_ticks}"
     if args.from_log is not None:
         rounds = rounds_from_log(args.from_log)
         command += f"  (stopped after {len(rounds['floor'])} whole rounds; summarised with --from-log)"

@@ -1,6 +1,6 @@
 """Discretisation floors: explicit Euler against the semi-implicit step (issue 7).
 
-Writes benchmarks/results/discretisation.json with, for both discretisations:
+Writes benchmarks/studies/results/discretisation.json with, for both discretisations:
 
 - ``paper``: ``configs/paper.toml`` and ``configs/paper-fast.toml`` as shipped
   (obstacles included, full duration, dt = 0.01): estimate and formation floors
@@ -17,7 +17,7 @@ each beside the lower limit ``hops * dt * |dp0/dt|`` (fxswarm.study.discretisati
 
 The cases run in parallel on spawned workers.
 
-    .venv/bin/python benchmarks/bench_discretisation.py [--workers 2] [--quick] [--only tracking]
+    .venv/bin/python benchmarks/studies/bench_discretisation.py [--workers 2] [--quick] [--only tracking]
 """
 
 from __future__ import annotations
@@ -33,6 +33,8 @@ from fxswarm.core.scenario import load
 from fxswarm.study.discretisation import case_toml, ratio, run_floor_case
 from fxswarm.study.parallel import parallel_map
 
+# The maintained benchmarks this study imports (bench_io, ...) sit one folder up.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench_io import machine, write_json  # a sibling script
 
 DISCRETISATIONS = ("euler", "semi-implicit")
@@ -110,7 +112,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--quick", action="store_true", help="fewer, shorter cases (a smoke run)")
-    parser.add_argument("--out", default="benchmarks/results/discretisation.json")
+    parser.add_argument("--out", default="benchmarks/studies/results/discretisation.json")
     parser.add_argument("--only", default=None, help="comma-separated series to run (paper, vs_dt, vs_leader_speed, "
                         "tracking); the others are left out of the JSON")
     args = parser.parse_args()
@@ -130,7 +132,7 @@ def main() -> int:
     paper_rows = pick("paper", "source")
     results = {
         "benchmark": "discretisation floors: explicit Euler vs semi-implicit (issue 7)",
-        "command": "python benchmarks/bench_discretisation.py" + (" --quick" if args.quick else "")
+        "command": "python benchmarks/studies/bench_discretisation.py" + (" --quick" if args.quick else "")
                    + (f" --only {args.only}" if args.only else ""),
         "machine": machine(),
         "floor_definition": "worst robot's error over the second half of the run (m)",

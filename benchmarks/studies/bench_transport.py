@@ -1,6 +1,6 @@
 """What one Zenoh message costs a Python process, by receive mechanism.
 
-    python benchmarks/bench_transport.py [--quick] [--mech NAME ...] [--out benchmarks/results/transport.json]
+    python benchmarks/studies/bench_transport.py [--quick] [--mech NAME ...] [--out benchmarks/studies/results/transport.json]
 
 Ping-pong between two Python processes (clients of a Python router,
 ``fxswarm router``): the ping process sends, the pong process answers, the
@@ -46,9 +46,11 @@ import threading
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
+# The maintained benchmarks this study imports (bench_io, ...) sit one folder up.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench_io import machine, start_router, write_json  # noqa: E402  (sibling scripts)
 from bench_runtime import cpu_s  # noqa: E402  (CPU time from /proc)
 
@@ -276,7 +278,7 @@ def main() -> int:
         worker(side, mech, endpoint, int(n), int(warmup))
         return 0
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "transport.json"))
+    p.add_argument("--out", default=str(ROOT / "benchmarks" / "studies" / "results" / "transport.json"))
     p.add_argument("--quick", action="store_true", help="fewer round trips (a smoke run)")
     p.add_argument("--mech", choices=MECHANISMS, action="append", help="only these mechanisms (repeatable)")
     p.add_argument("--runtime", action="append", default=[], metavar="RON",
