@@ -240,3 +240,28 @@ def test_paper_fast_still_reaches_its_formation_and_keeps_clear_of_objects(world
     assert summary["formation_settle_s"] is not None and summary["formation_settle_s"] <= 38.0
     assert summary["min_object_distance_m"] > 2.0 / 2, summary["min_object_distance_m"]
     assert summary["world"]["models"]["1"] == world["model"]
+
+
+# --- the logger ---------------------------------------------------------------------------------
+
+
+def test_the_recording_draws_each_unicycles_heading_live_and_from_a_finished_run(tmp_path):
+    from fxswarm.logger import style
+    from fxswarm.logger.recorder import RecorderOptions
+    from fxswarm.logger.replay import record_run
+    from fxswarm.runtime.output import write_run
+    from support import read_series, record_in_process
+
+    sc = scenario({"model": "unicycle"}, robots={2: {"heading": 1.0}}, duration=1.0)
+    sim, summary, _ = record_in_process(sc, tmp_path / "live.rrd", "test-headings", RecorderOptions(rate_hz=10.0))
+    traj = sim.trajectory()
+    write_run(tmp_path / "run", summary, traj)
+    replayed = record_run(tmp_path / "run", tmp_path / "replay.rrd", scenario=sc)
+    for rrd in (tmp_path / "live.rrd", replayed):
+        series = read_series(rrd)[style.HEADINGS]
+        k = np.searchsorted(traj["t"], np.array(series["t"]) - 1e-9)
+        arrows = np.array(series["Arrows3D:vectors"])
+        yaw = traj["heading"][k]
+        np.testing.assert_allclose(arrows[..., 0], style.HEADING_LENGTH * np.cos(yaw), atol=1e-5)
+        np.testing.assert_allclose(arrows[..., 1], style.HEADING_LENGTH * np.sin(yaw), atol=1e-5)
+        assert abs(yaw[0, 2] - 1.0) < 1e-12 and np.ptp(yaw[:, 0]) > 0.1  # robot 3 started at 1 rad; they turn
