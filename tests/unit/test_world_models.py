@@ -265,3 +265,18 @@ def test_the_recording_draws_each_unicycles_heading_live_and_from_a_finished_run
         np.testing.assert_allclose(arrows[..., 0], style.HEADING_LENGTH * np.cos(yaw), atol=1e-5)
         np.testing.assert_allclose(arrows[..., 1], style.HEADING_LENGTH * np.sin(yaw), atol=1e-5)
         assert abs(yaw[0, 2] - 1.0) < 1e-12 and np.ptp(yaw[:, 0]) > 0.1  # robot 3 started at 1 rad; they turn
+
+
+def test_summary_and_report_say_the_models_the_noise_and_the_ticks_at_each_limit(tmp_path):
+    from fxswarm.report.index import write_index
+
+    _, summary, _ = flown({"model": "unicycle", "v_max": 0.3, "pose_noise": 0.02}, duration=0.5,
+                          robots={5: {"model": "double-integrator"}})
+    world = summary["world"]
+    assert world["pose_noise_m"] == 0.02 and world["sensing_range_m"] is None
+    assert world["saturated_ticks"]["speed"]["1"] > 0 and set(world["saturated_ticks"]) == {
+        "speed", "yaw_rate", "acceleration"}
+    text = write_index(tmp_path, summary, [], []).read_text()
+    assert "| drive model (robots) | unicycle (1, 2, 3, 4, 5); double-integrator (6) |" in text
+    assert f"| ticks at the speed limit (robot: ticks) | 1: {world['saturated_ticks']['speed']['1']}," in text
+    assert "0.02 m, 0 m, 0 ticks, unlimited" in text
