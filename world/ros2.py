@@ -150,6 +150,10 @@ class GatewayWorld(WorldNode):
         self.stale_pose_ticks += self.stale
         self.limited_ticks += np.linalg.norm(self.v, axis=1) > self.v_max + 1e-9
         self.v = self.safe(self.v)
+        if self.drives is not None:  # [world] drive models: the robots' own headings, and they move as sent
+            if self.heading is not None:
+                self.heading = np.where(fresh, self.board.yaw, self.heading)
+            self.vel = self.v
 
     def safe(self, v: np.ndarray) -> np.ndarray:
         """Velocities ``v`` (n, 3) as they may reach the robots: limited to ``v_max``, zero for a
