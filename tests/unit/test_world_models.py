@@ -280,3 +280,22 @@ def test_summary_and_report_say_the_models_the_noise_and_the_ticks_at_each_limit
     assert "| drive model (robots) | unicycle (1, 2, 3, 4, 5); double-integrator (6) |" in text
     assert f"| ticks at the speed limit (robot: ticks) | 1: {world['saturated_ticks']['speed']['1']}," in text
     assert "0.02 m, 0 m, 0 ticks, unlimited" in text
+
+
+# --- campaigns ----------------------------------------------------------------------------------
+
+
+def test_a_campaign_grid_axis_over_the_pose_noise_sets_it_in_each_run_and_refuses_a_negative_one(tmp_path):
+    from fxswarm.core.scenario import load
+    from fxswarm.study.campaign_plan import CampaignError, Criteria, make_plan, parse_axis
+
+    def plan(*grid, out):
+        return make_plan(str(PAPER_FAST), load(PAPER_FAST), tmp_path / out, ["agent:*->agent:* drop={loss}"],
+                         [parse_axis(g) for g in grid], [], 1, 0, Criteria(1.0, None, 0.2))
+
+    p = plan("world.pose_noise=0,0.02,0.05", "loss=0,0.3", out="ok")
+    noise = sorted({p.tables[r.scenario]["world"]["pose_noise"] for r in p.runs})
+    assert noise == [0, 0.02, 0.05] and len(p.runs) == 6
+    assert parse(p.tables[p.runs[-1].scenario], "cell").world.sensing.pose_noise == (0.05,) * 6
+    with pytest.raises(CampaignError, match=r"world\.pose_noise: expected a number >= 0"):
+        plan("world.pose_noise=0,-0.1", "loss=0", out="bad")
