@@ -96,7 +96,8 @@ def test_double_integrator_tracks_the_command_with_bounded_acceleration_and_lag_
 
 def test_a_mixed_swarm_flies_each_robot_with_its_own_model_and_a_single_integrator_with_its_own_speed_limit():
     sim, summary, tr = flown({"model": "unicycle"}, duration=2.0,
-                             robots={2: {"model": "double-integrator"}, 5: {"model": "single-integrator", "v_max": 0.5}})
+                             robots={2: {"model": "double-integrator"},
+                                     5: {"model": "single-integrator", "v_max": 0.5}})
     models = summary["world"]["models"]
     assert models == {"1": "unicycle", "2": "unicycle", "3": "double-integrator", "4": "unicycle",
                       "5": "unicycle", "6": "single-integrator"}
@@ -127,7 +128,8 @@ def sensed(sim: Simulation, ticks: int) -> list[list[Sense]]:
     goes to its end)."""
     got: dict[int, dict[int, Sense]] = {}
     for r in sim.scenario.robots:
-        sim.bus.subscribe(sense_topic(r.id), lambda topic, msg: got.setdefault(msg.tick, {}).__setitem__(msg.robot, msg))
+        sim.bus.subscribe(sense_topic(r.id),
+                          lambda topic, msg: got.setdefault(msg.tick, {}).__setitem__(msg.robot, msg))
     sim.run()
     return [[got[k][r.id] for r in sim.scenario.robots] for k in range(ticks)]
 
