@@ -108,7 +108,7 @@ class Sense(Message):
     """What the world tells robot ``robot`` alone: its position and nearest object."""
 
     robot: int
-    p: np.ndarray  # (3,) true position, m
+    p: np.ndarray  # (3,) its position as sensed (the truth unless [world] adds pose noise or delay), m
     po: np.ndarray | None  # (3,) nearest object (obstacle or teammate), m; None if there is none
     vo: np.ndarray | None  # (3,) that object's velocity, m/s
     # With drive models (docs/robots.md), where the robot's model has them; left out otherwise:
