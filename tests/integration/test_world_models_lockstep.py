@@ -26,3 +26,14 @@ def test_lockstep_with_unicycles_pose_noise_and_link_loss_is_bit_identical_to_th
     from fxswarm.runtime.output import load_trajectory
     heading = load_trajectory(swarm.out)["heading"]
     assert np.abs(heading[-1]).max() > 0  # the robots turned: the unicycle model acted
+
+
+@pytest.mark.zenoh
+def test_lockstep_with_double_integrators_obstacle_noise_and_sensing_delay_is_bit_identical_to_the_sim(launch_swarm):
+    swarm = launch_swarm(CONFIGS / "faults-lossy.toml", duration=1.0,
+                         **{"world.model": "double-integrator", "world.a_max": 1.0, "world.tau": 0.1,
+                            "world.obstacle_noise": 0.05, "world.sensing_delay": 2})
+    summary = swarm.wait_done(timeout=300)
+    assert summary["complete"] and summary["missed_ticks"] == 0
+    expected = swarm.assert_matches_sim()
+    assert summary["world"] == expected["world"] and summary["world"]["saturated_ticks"]["acceleration"]
