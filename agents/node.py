@@ -345,6 +345,9 @@ class AgentNode:
         view.t, view.dt, view.heard_leader = s.t, dt, self.pinned and not no_leader
         vh = self.vh.tolist() if self.feedforward else None  # eqs. (11ff), (v2ff)
         nearest = None if po is None else (po, _ZERO if s.vo is None else s.vo.tolist())
+        if s.heading is not None or s.velocity is not None:  # the robot's drive model has them
+            view.heading = s.heading
+            view.velocity = s.velocity if s.velocity is None or not self.law_floats else s.velocity.tolist()
         if self.law_floats:
             view.p, view.ph, view.offset, view.offset_rate = p, self.ph.tolist(), p_i0, dp_i0
             view.rows, view.weights, view.vh, view.nearest = rows, weights, vh, nearest

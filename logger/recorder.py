@@ -183,6 +183,8 @@ class SwarmRecorder:
         rec.log(style.TRAILS, rr.LineStrips3D.from_fields(colors=colours, radii=0.04), static=True)
         rec.log(style.EDGES, rr.LineStrips3D.from_fields(radii=0.02), static=True)
         rec.log(style.VELOCITIES, rr.Arrows3D.from_fields(colors=colours, radii=0.05), static=True)
+        if sc.world is not None and "unicycle" in sc.world.models:
+            rec.log(style.HEADINGS, rr.Arrows3D.from_fields(colors=colours, radii=0.08), static=True)
         m = len(sc.obstacles)
         if m:
             obstacle_style = rr.Ellipsoids3D.from_fields(
@@ -285,6 +287,10 @@ class SwarmRecorder:
         if self.opt.velocities:
             v = np.stack([s.v for s in states]).reshape(-1, 3)
             send_rows(rec, style.VELOCITIES, rr.Arrows3D, t, k, n, vectors=v, origins=flat)
+        if all(s.heading is not None for s in states):  # unicycles: each robot's orientation
+            yaw = np.stack([s.heading for s in states]).reshape(-1)
+            arrows = style.HEADING_LENGTH * np.column_stack([np.cos(yaw), np.sin(yaw), np.zeros_like(yaw)])
+            send_rows(rec, style.HEADINGS, rr.Arrows3D, t, k, n, vectors=arrows, origins=flat)
         self._send_trails(frames, t, k)
         self._send_edges(frames, p, p0, t, k)
 

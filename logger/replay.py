@@ -22,9 +22,11 @@ from fxswarm.runtime.output import load_trajectory, scenario_of_run
 def world_states(traj: dict[str, np.ndarray]):
     """The ``WorldState`` of every recorded tick, as the world node publishes it."""
     near = np.where(np.isfinite(traj["nearest_distance"]), traj["nearest_distance"], -1.0)
+    heading = traj.get("heading")  # unicycles' (docs/robots.md)
     for k, t in enumerate(traj["t"]):
         yield WorldState("world", 0, k + 1, k, float(t), traj["p"][k], traj["v"][k], traj["ph"][k], near[k],
-                         traj["avoid_active"][k], traj["obstacles"][k])
+                         traj["avoid_active"][k], traj["obstacles"][k],
+                         heading=None if heading is None else heading[k])
 
 
 def record_run(run_dir: str | Path, out: str | Path | None = None, scenario: Scenario | None = None,

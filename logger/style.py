@@ -21,6 +21,8 @@ SLOTS = "world/slots"
 OBSTACLES = "world/obstacles"
 EDGES = "world/edges"
 VELOCITIES = "world/velocities"
+HEADINGS = "world/headings"  # a unicycle's heading (docs/robots.md), an arrow of HEADING_LENGTH m
+HEADING_LENGTH = 0.8
 
 # Time series: one entity per plot, all robots in one Scalars (one series each).
 FORMATION_ERROR = "metrics/formation_error"

@@ -27,10 +27,12 @@ from collections.abc import Callable, Collection
 import numpy as np
 
 from fxswarm.core import bus as topics
+from fxswarm.core.drive import step_double_integrator, step_unicycle
 from fxswarm.core.messages import Clock, Command, Message, Sense, WorldState
 from fxswarm.core.motion import Static
 from fxswarm.core.pacing import Deadline, Pacer, WallClock
 from fxswarm.core.scenario import Scenario
+from fxswarm.core.sensing import Sensors
 from fxswarm.faults.plan import DegradedLimits, degraded_limits
 
 
@@ -107,6 +109,7 @@ class WorldNode:
         self._links_key: tuple | None = None  # what the cached arrays were built from
         self._links_cached: tuple[np.ndarray, np.ndarray] | None = None
         self.link_reports_invalid = 0  # commands whose link reports had the wrong number of links
+        self._models(scenario)
         self.record = record
         if record:
             self.rec_t = np.arange(ticks) * scenario.dt
@@ -117,6 +120,34 @@ class WorldNode:
             self.rec_near_obstacle = np.zeros((ticks, n))
             self.rec_avoid = np.zeros((ticks, n), dtype=bool)
             self.rec_obstacles = np.zeros((ticks, len(scenario.obstacles), 3))
+            if self.drives is not None:
+                self.rec_heading = np.zeros((ticks, n))
+                self.rec_velocity = np.zeros((ticks, n, 3))
+
+    def _models(self, sc: Scenario) -> None:
+        """The robots' drive models and sensors ([world], docs/robots.md). ``drives`` and
+        ``sensors`` stay None in the paper's world (every robot an unlimited single integrator
+        sensing the truth): then :meth:`move` and :meth:`_emit_tick` are what they always were."""
+        w = sc.world
+        self.drives = None if w is None or w.ideal_motion else w.drives
+        self.sensors = None if w is None or w.sensing.ideal else Sensors(w.sensing, sc.n, sc.seed)
+        n = sc.n
+        self.vel = np.zeros((n, 3))  # with drive models: the velocity each robot moves at
+        self.heading = None  # (n,) rad, with a unicycle in the swarm
+        self.saturated = {}  # limit -> ticks each robot spent at it (n,)
+        if self.drives is None:
+            return
+        models = [d.model for d in self.drives]
+        self._uni = [i for i, m in enumerate(models) if m == "unicycle"]
+        self._di = [i for i, m in enumerate(models) if m == "double-integrator"]
+        self._si_limits = np.array([np.inf if d.v_max is None or m != "single-integrator" else d.v_max
+                                    for d, m in zip(self.drives, models)])
+        self.heading = np.array(w.headings, dtype=float) if self._uni else None
+        self.saturated = {"speed": np.zeros(n, dtype=int)}
+        if self._uni:
+            self.saturated["yaw_rate"] = np.zeros(n, dtype=int)
+        if self._di:
+            self.saturated["acceleration"] = np.zeros(n, dtype=int)
 
     @property
     def t(self) -> float:
@@ -221,8 +252,47 @@ class WorldNode:
 
     def move(self, dt: float) -> None:
         """The robots move ``dt`` s on the held commands: explicit Euler (SPEC section 7). The
-        ROS 2 world (:mod:`fxswarm.world.ros2`) takes the robots' measured poses here instead."""
-        self.p = self.p + dt * self.v
+        ROS 2 world (:mod:`fxswarm.world.ros2`) takes the robots' measured poses here instead.
+        With drive models ([world] model), each robot moves as its model does on the command."""
+        if self.drives is None:
+            self.p = self.p + dt * self.v
+            return
+        v = self.v
+        p = self.p + dt * v  # the single integrators (the others' rows are overwritten below)
+        vel = v.copy()
+        speed = np.sqrt(np.einsum("ij,ij->i", v, v))
+        over = speed > self._si_limits  # a single integrator's own speed limit
+        if over.any():
+            vel[over] *= (self._si_limits[over] / speed[over])[:, None]
+            p[over] = self.p[over] + dt * vel[over]
+            self.saturated["speed"] += over
+        drives = self.drives
+        if self._uni:
+            u = self._uni
+            p[u], self.heading[u], vel[u], at_v, at_w = step_unicycle(
+                self.p[u], self.heading[u], v[u], dt, [drives[i] for i in u])
+            self.saturated["speed"][u] += at_v
+            self.saturated["yaw_rate"][u] += at_w
+        if self._di:
+            k = self._di
+            p[k], vel[k], at_v, at_a = step_double_integrator(self.p[k], self.vel[k], v[k], dt, [drives[i] for i in k])
+            self.saturated["speed"][k] += at_v
+            self.saturated["acceleration"][k] += at_a
+        self.p, self.vel = p, vel
+
+    def drive_report(self) -> dict | None:
+        """summary.json's ``world``: the models flown, the sensing, and per limit the ticks each
+        robot spent at it (robot ids as string keys, robots never at it left out); None in the
+        paper's world (no [world] table)."""
+        w = self.sc.world
+        if w is None:
+            return None
+        s = w.sensing
+        return {"models": {str(r.id): d.model for r, d in zip(self.sc.robots, w.drives)},
+                "pose_noise_m": max(s.pose_noise, default=0.0), "obstacle_noise_m": s.obstacle_noise,
+                "sensing_delay_ticks": s.delay, "sensing_range_m": s.range,
+                "saturated_ticks": {limit: {str(i + 1): int(x) for i, x in enumerate(a) if x}
+                                    for limit, a in self.saturated.items()}}
 
     def _note_silence(self, heard, dt: float) -> None:
         """Robots not ``heard`` this step keep their last command until silent longer than
@@ -278,7 +348,8 @@ class WorldNode:
     def _sense_now(self):
         t = self.t
         obstacles, obstacle_v = self._fixed_obstacles or self.obstacle_state(t)
-        po, vo, dist, _, obstacle_dist = nearest_objects(self.p, self.v, obstacles, obstacle_v)
+        po, vo, dist, _, obstacle_dist = nearest_objects(
+            self.p, self.v if self.drives is None else self.vel, obstacles, obstacle_v)
         self._sensed = (obstacles, dist, obstacle_dist)
         return po, vo, dist
 
@@ -286,6 +357,8 @@ class WorldNode:
         t, k = self.t, self.tick
         po, vo, dist = self._sense_now()
         self.seq += 1
+        if self.sensors is not None or self.drives is not None:
+            return self._emit_sensed(po, vo, dist)
         out: list[topics.Outgoing] = []  # no clock message: the leader takes the tick from robot 1's sensing
         # Rows of fresh arrays (one copy of p, po and vo are new), and plain floats for the test:
         # numpy calls per robot cost more than the work (issue 2).
@@ -293,6 +366,28 @@ class WorldNode:
             has = math.isfinite(dist_i)
             out.append((topics.sense_topic(r.id), Sense(
                 "world", 0, self.seq, k, t, r.id, p_i, po_i if has else None, vo_i if has else None)))
+        self._tick_said = out
+        return out
+
+    def _emit_sensed(self, po: np.ndarray, vo: np.ndarray, dist: np.ndarray) -> list[topics.Outgoing]:
+        """:meth:`_emit_tick` with drive models or sensors: each robot's sensing as its sensors
+        measured it (:class:`~fxswarm.core.sensing.Sensors`), with its heading and velocity
+        where its model has them."""
+        t, k = self.t, self.tick
+        heading, velocity = self.heading, None if self.drives is None else self.vel
+        if self.sensors is not None:
+            p, po, vo, has, heading, velocity = self.sensors.measure(self.p, po, vo, dist, heading, velocity)
+        else:
+            p, has = self.p.copy(), np.isfinite(dist)
+        drives = self.drives
+        out: list[topics.Outgoing] = []
+        for i, r in enumerate(self.sc.robots):
+            model = "single-integrator" if drives is None else drives[i].model
+            h = float(heading[i]) if heading is not None and model == "unicycle" else None
+            vi = velocity[i].copy() if velocity is not None and model != "single-integrator" else None
+            out.append((topics.sense_topic(r.id), Sense(
+                "world", 0, self.seq, k, t, r.id, p[i].copy(), po[i].copy() if has[i] else None,
+                vo[i].copy() if has[i] else None, h, vi)))
         self._tick_said = out
         return out
 
@@ -308,7 +403,8 @@ class WorldNode:
         obstacles, dist, _ = self._sensed if self._sensed is not None else self._sense_now()
         return topics.WORLD_STATE, WorldState(
             "world", 0, self.seq, self.tick, self.t, self.p.copy(), self.v.copy(), self.ph.copy(),
-            np.where(np.isfinite(dist), dist, -1.0), self.avoid.copy(), obstacles.copy(), *self.link_health())
+            np.where(np.isfinite(dist), dist, -1.0), self.avoid.copy(), obstacles.copy(), *self.link_health(),
+            None if self.heading is None else self.heading.copy())
 
     def _record(self) -> None:
         k = self.tick
@@ -322,6 +418,10 @@ class WorldNode:
         self.rec_near_obstacle[k] = obstacle_dist
         self.rec_avoid[k] = self.avoid
         self.rec_obstacles[k] = obstacles
+        if self.drives is not None:
+            self.rec_velocity[k] = self.vel
+            if self.heading is not None:
+                self.rec_heading[k] = self.heading
 
     def trajectory(self) -> dict[str, np.ndarray]:
         """The recorded run, as saved to ``trajectory.npz`` (shapes in README)."""
@@ -338,7 +438,9 @@ class WorldNode:
             "avoid_active": self.rec_avoid[:ticks],
             "obstacles": self.rec_obstacles[:ticks],
             "offsets": np.stack([r.offset.positions(t) for r in self.sc.robots], axis=1).reshape(-1, self.sc.n, 3),
-        }
+        } | ({} if self.drives is None else {  # with drive models: the velocity moved at (v: the command)
+            "velocity": self.rec_velocity[:ticks],
+            **({} if self.heading is None else {"heading": self.rec_heading[:ticks]})})
 
 
 class TickTimer:

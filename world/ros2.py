@@ -29,6 +29,7 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
+from fxswarm.core.drive import unicycle_command
 from fxswarm.core.pacing import WallClock
 from fxswarm.core.scenario import Ros2Settings, Scenario
 from fxswarm.faults.plan import DegradedLimits
@@ -55,17 +56,12 @@ def yaw_of(x: float, y: float, z: float, w: float) -> float:
 
 
 def differential_drive(v: np.ndarray, yaw: float, heading_gain: float, omega_max: float) -> tuple[float, float]:
-    """A world-frame velocity ``v`` (3,) as a differential-drive command ``(forward m/s, omega rad/s)``.
-
-    Turn toward ``v``'s heading at ``heading_gain`` times the heading error (limited to
-    ``omega_max``) and drive forward at ``|v_xy| cos(error)``, never backward: a robot facing
-    away turns in place first. The vertical part is dropped (a ground robot).
+    """A world-frame velocity ``v`` (3,) as a differential-drive command ``(forward m/s, omega rad/s)``:
+    the simulated unicycle's mapping (:func:`fxswarm.core.drive.unicycle_command`, heading form),
+    so the lab robot turns a command as the world's unicycle does. The vertical part is dropped
+    (a ground robot); the forward speed is limited before, with the whole velocity (:func:`limited`).
     """
-    speed = math.hypot(v[0], v[1])
-    if speed < 1e-9:
-        return 0.0, 0.0
-    error = math.remainder(math.atan2(v[1], v[0]) - yaw, math.tau)
-    return speed * max(math.cos(error), 0.0), max(-omega_max, min(omega_max, heading_gain * error))
+    return unicycle_command(float(v[0]), float(v[1]), yaw, heading_gain, omega_max)
 
 
 class PoseBoard:
@@ -131,6 +127,10 @@ class GatewayWorld(WorldNode):
                 self.warn(f"fxswarm world: robot {i + 1}'s pose is {age[i]:.2f} s old (limit "
                           f"{self.board.timeout:g} s): holding it at zero")
         self.v = self.safety.safe(self.v)
+        if self.drives is not None:  # [world] drive models: the robots' own headings, and they move as sent
+            if self.heading is not None:
+                self.heading = np.where(fresh, self.board.yaw, self.heading)
+            self.vel = self.v
 
     def velocities(self) -> np.ndarray:
         """The world-frame velocities to send now (n, 3): the held commands made safe (again: a

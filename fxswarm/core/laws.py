@@ -54,18 +54,21 @@ class LawView:
     pinned and heard, with ``a_ij`` (``b_i``): the one list a consensus sum runs over;
     ``heard_leader``: whether the last row is the leader's; ``nearest``: None or
     ``(po, vo)``; ``vh``: the observed leader velocity with ``[estimator] tracking =
-    "feedforward"``, else None.
+    "feedforward"``, else None; ``heading`` (rad) and ``velocity`` (the velocity the robot
+    moves at): sensed where the robot's drive model has them (``heading`` a unicycle's,
+    ``velocity`` a unicycle's or a double integrator's; docs/robots.md), else None.
 
     The node refreshes one view per robot each tick: a law copies what it keeps.
     """
 
     __slots__ = ("robot_id", "t", "dt", "d", "p", "ph", "offset", "offset_rate", "rows", "weights",
-                 "heard_leader", "nearest", "vh")
+                 "heard_leader", "nearest", "vh", "heading", "velocity")
 
     def __init__(self, robot_id: int, d: float) -> None:
         self.robot_id, self.d = robot_id, d
         self.t = self.dt = 0.0
         self.p = self.ph = self.offset = self.offset_rate = self.vh = self.nearest = None
+        self.heading = self.velocity = None
         self.rows, self.weights, self.heard_leader = [], [], False
 
 

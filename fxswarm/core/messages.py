@@ -20,6 +20,8 @@ Optional fields (``[estimator] tracking = "feedforward"``, docs/estimator.md): `
 (the leader's velocity), ``Estimate.vh`` and ``Command.vh`` (the robot's estimate of it). Left
 out of the wire form when None, so a run without them sends the same bytes as before and the
 schema version stays 2; when present they are checked as every vector is (3 finite numbers).
+The same holds for the drive models' ``Sense.heading``, ``Sense.velocity`` and
+``WorldState.heading`` (docs/robots.md).
 
 The estimate rides on the command: a robot's command also carries the estimate it sends its
 neighbours next (``Command.est_tick``, ``est_t``, ``est_ph``, ``est_vh``; all four or none),
@@ -106,9 +108,12 @@ class Sense(Message):
     """What the world tells robot ``robot`` alone: its position and nearest object."""
 
     robot: int
-    p: np.ndarray  # (3,) true position, m
+    p: np.ndarray  # (3,) its position as sensed (the truth unless [world] adds pose noise or delay), m
     po: np.ndarray | None  # (3,) nearest object (obstacle or teammate), m; None if there is none
     vo: np.ndarray | None  # (3,) that object's velocity, m/s
+    # With drive models (docs/robots.md), where the robot's model has them; left out otherwise:
+    heading: float | None = None  # yaw, rad (a unicycle)
+    velocity: np.ndarray | None = None  # (3,) the velocity it moves at, m/s (not a single integrator)
 
 
 @_message
@@ -171,6 +176,7 @@ class WorldState(Message):
     # it, its age grown by the ticks since that report:
     link_age: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (L,) ticks
     link_drops: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (L,) messages missed
+    heading: np.ndarray | None = None  # (n,) yaw, rad, with a unicycle in the swarm (docs/robots.md)
 
 
 KINDS: dict[str, type[Message]] = {
@@ -189,13 +195,13 @@ _SHAPES: dict[str, str] = {
     "p": "vec", "po": "vec?", "vo": "vec?", "p0": "vec", "ph": "vec", "v": "vec",
     "vh": "vec?", "v0": "vec?", "est_ph": "vec?", "est_vh": "vec?", "est_tick": "int?", "est_t": "float?",
     "robot": "int", "avoid_active": "bool", "flags": "int", "link_age": "counts", "link_drops": "counts",
-    "law_error": "text?",
+    "law_error": "text?", "heading": "float?", "velocity": "vec?",
 }
 _STATE_SHAPES = {"p": "mat", "v": "mat", "ph": "mat", "nearest": "row", "avoid": "boolrow", "obstacles": "mat",
-                 "link_age": "countrow", "link_drops": "countrow"}
+                 "link_age": "countrow", "link_drops": "countrow", "heading": "row?"}
 _MAX_COUNT = 2**53
 #: Fields a payload may leave out (None then); encode leaves them out when None.
-_OPTIONAL = frozenset({"vh", "v0", "est_tick", "est_t", "est_ph", "est_vh", "law_error"})
+_OPTIONAL = frozenset({"vh", "v0", "est_tick", "est_t", "est_ph", "est_vh", "law_error", "heading", "velocity"})
 #: The longest text field (``law_error``) a message may carry, characters.
 MAX_TEXT = 200
 
@@ -238,7 +244,7 @@ def _finite_number(x) -> bool:
 
 
 def _check(name: str, shape: str, value):
-    if shape in ("int?", "float?", "vec?", "text?") and value is None:
+    if shape in ("int?", "float?", "vec?", "text?", "row?") and value is None:
         return None
     if shape == "text?":
         if not isinstance(value, str) or len(value) > MAX_TEXT:
@@ -276,7 +282,7 @@ def _check(name: str, shape: str, value):
         ):
             raise WireError(f"field {name!r}: expected rows of 3 finite numbers")
         return np.array(value, dtype=float).reshape(-1, 3)
-    if shape == "row":
+    if shape in ("row", "row?"):
         if not isinstance(value, list) or not all(_finite_number(x) for x in value):
             raise WireError(f"field {name!r}: expected a list of finite numbers")
         return np.array(value, dtype=float)
@@ -409,7 +415,8 @@ def decode(payload: bytes) -> Message:
         values[name] = _check(name, shapes[name], raw[name])
     if cls is WorldState:
         n = len(values["p"])
-        if not all(len(values[k]) == n for k in ("v", "ph", "nearest", "avoid")):
+        if not all(len(values[k]) == n for k in ("v", "ph", "nearest", "avoid")) or (
+                values["heading"] is not None and len(values["heading"]) != n):
             raise WireError("world state: arrays of different robot counts")
     if "link_age" in values and len(values["link_age"]) != len(values["link_drops"]):
         raise WireError("link_age and link_drops: different link counts")

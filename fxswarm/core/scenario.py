@@ -21,6 +21,8 @@ import numpy as np
 from fxswarm.core import motion
 from fxswarm.core.bus import SWARM_NAME_RULE, is_swarm_name
 from fxswarm.core.control import BehaviourGains, EstimatorGains
+from fxswarm.core.drive import MODELS, Drive
+from fxswarm.core.sensing import Sensing
 from fxswarm.core.laws import LawError, make_law, resolve_law
 from fxswarm.core.paper_law import BUILTIN_LAWS, FAMILIES, builtin_name, family_gains, split_builtin
 from fxswarm.core.observer import DEFAULT_OBSERVER_GAINS, OBSERVER_GRAPHS, TRACKINGS, max_acceleration_inf
@@ -75,6 +77,7 @@ class Scenario:
     law: str = "fixed-time"  # [controller] law: a built-in name (fxswarm.core.laws) or module:Class
     law_params: dict = field(repr=False, default_factory=dict)  # [controller.params], handed to the law
     law_folder: str | None = None  # the scenario's folder: where a law module beside it is imported from
+    world: "WorldSettings | None" = None  # [world] and the robots' drive keys; None: the paper's ideal world
 
     @property
     def n(self) -> int:
@@ -454,6 +457,72 @@ def _ros2(f: _Fields) -> Ros2Settings:
     return settings
 
 
+@dataclass(frozen=True)
+class WorldSettings:
+    """[world] and the drive keys of the [[robots]] entries (docs/robots.md): per robot its drive
+    model and initial heading (rad), and the robots' sensing."""
+
+    drives: tuple[Drive, ...]
+    headings: tuple[float, ...]
+    sensing: Sensing
+
+    @property
+    def ideal_motion(self) -> bool:
+        """Every robot a single integrator with no speed limit of its own (the paper's world)."""
+        return all(d.model == "single-integrator" and d.v_max is None for d in self.drives)
+
+    @property
+    def models(self) -> tuple[str, ...]:
+        """The models flown, each once, in :data:`~fxswarm.core.drive.MODELS` order."""
+        return tuple(m for m in MODELS if any(d.model == m for d in self.drives))
+
+
+#: [world] keys; a [[robots]] entry may give those in ROBOT_WORLD_KEYS for itself.
+WORLD_KEYS = {"model", "v_max", "omega_max", "heading_gain", "lookahead", "planar", "a_max", "tau",
+              "pose_noise", "obstacle_noise", "sensing_delay", "sensing_range"}
+ROBOT_WORLD_KEYS = ("model", "heading", "v_max", "pose_noise")
+
+
+def _is_planar(leader: motion.Path, robots: list[Robot], duration: float) -> bool:
+    """Whether the leader stays at one height and no offset moves vertically: a ground swarm."""
+    z0 = leader.position(0.0)[2]
+    if any(abs(leader.position(duration * k / 64)[2] - z0) > 1e-9 for k in range(65)):
+        return False
+    return all(r.offset.amplitude[2] == 0.0 for r in robots)
+
+
+def _world(wf: _Fields, robot_tables: list[_Fields], robots: list[Robot], sc_v_max: float | None,
+           d: float, leader: motion.Path, duration: float) -> WorldSettings | None:
+    """[world] and the robots' own drive keys, checked; None if the scenario gives none of them."""
+    wf.check_known(WORLD_KEYS)
+    if not wf.table and not any(rf.has(k) for rf in robot_tables for k in ROBOT_WORLD_KEYS):
+        return None
+    model = wf.string("model", "single-integrator", MODELS)
+    world_v_max = wf.optional_number("v_max", positive=True)
+    omega_max = wf.number("omega_max", 2.0, positive=True)
+    heading_gain = wf.number("heading_gain", 2.0, positive=True)
+    lookahead = wf.number("lookahead", 0.0, nonnegative=True)
+    planar = wf.boolean("planar") if wf.has("planar") else _is_planar(leader, robots, duration)
+    a_max = wf.optional_number("a_max", positive=True)
+    tau = wf.number("tau", 0.0, nonnegative=True)
+    pose_noise = wf.number("pose_noise", 0.0, nonnegative=True)
+    sensing_range = wf.optional_number("sensing_range", positive=True)
+    if sensing_range is not None and sensing_range < d:
+        wf.fail("sensing_range", f"a range >= d = {d:g} m (a robot must sense what it must avoid)", sensing_range)
+    drives, headings, noise = [], [], []
+    for rf in robot_tables:
+        m = rf.string("model", model, MODELS)
+        v_max = rf.optional_number("v_max", positive=True)
+        if v_max is None:
+            v_max = world_v_max if world_v_max is not None or m == "single-integrator" else sc_v_max
+        drives.append(Drive(m, v_max, omega_max, heading_gain, lookahead, planar, a_max, tau))
+        headings.append(rf.number("heading", 0.0))
+        noise.append(rf.number("pose_noise", pose_noise, nonnegative=True))
+    sensing = Sensing(tuple(noise), wf.number("obstacle_noise", 0.0, nonnegative=True),
+                      wf.integer("sensing_delay", 0, minimum=0), sensing_range)
+    return WorldSettings(tuple(drives), tuple(headings), sensing)
+
+
 def _builtin_law(cf: _Fields) -> tuple[str | None, str | None]:
     """``(family, tracking)`` a built-in ``[controller] law`` name sets (None, None: no such name)."""
     if not cf.has("law"):
@@ -479,7 +548,7 @@ def parse(data: dict, source: str = "<scenario>", folder: str | None = None, *, 
     ``check_law=False``: the law is not imported (for an observer, which flies nothing)."""
     top = _Fields(source, data)
     top.check_known({"scenario", "gains", "estimator", "graph", "leader", "formation", "robots",
-                     "obstacles", "faults", "controller", "logging", "zenoh", "ros2"})
+                     "obstacles", "faults", "controller", "logging", "zenoh", "ros2", "world"})
     sc = top.table_at("scenario", required=True)
     sc.check_known({"name", "duration", "dt", "seed", "settle_tolerance", "d", "v_max"})
     name = sc.string("name", FilePath(source).stem)
@@ -532,7 +601,7 @@ def parse(data: dict, source: str = "<scenario>", folder: str | None = None, *, 
         top.fail("robots", "at least one [[robots]] table", show_got=False)
     robots = []
     for k, rf in enumerate(robot_tables):
-        rf.check_known({"position", "offset", "estimate", "amplitude", "omega", "phase"})
+        rf.check_known({"position", "offset", "estimate", "amplitude", "omega", "phase", *ROBOT_WORLD_KEYS})
         offset = motion.Offset(
             rf.vector("offset"),
             *(rf.vector(key, shared[key]) for key in ("amplitude", "omega", "phase")),
@@ -605,6 +674,8 @@ def parse(data: dict, source: str = "<scenario>", folder: str | None = None, *, 
         law=cf.string("law") if cf.has("law") else builtin_name(variant, tracking),
         law_params=dict(cf.table_at("params").table),
         law_folder=folder if folder is not None else _folder_of(source),
+        world=_world(top.table_at("world"), robot_tables, robots, sc.optional_number("v_max", positive=True),
+                     sc.number("d", positive=True), leader, duration),
     )
     if check_law:
         _law(scenario, cf)

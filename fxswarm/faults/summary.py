@@ -43,6 +43,9 @@ def build_summary(sc: Scenario, traj: dict[str, np.ndarray], plan: FaultPlan, *,
     summary["degraded"] = degraded() if degraded is not None else {"ticks": 0, "robots": []}
     summary["router_outages"] = list(router_outages or [])
     summary["law"] = law_summary(sc, world)
+    drive_report = getattr(world, "drive_report", None)
+    if sc.world is not None and drive_report is not None:  # [world]: the models, the sensing, the limits hit
+        summary["world"] = drive_report()
     summary.update(fault_summary(sc, plan, traj, world, dict(links or {}), restarts))
     if processes is not None:
         add_processes(summary, processes, process_events)

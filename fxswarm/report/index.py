@@ -40,6 +40,23 @@ def _fmt(value, form: str) -> str:
         return str(value)
 
 
+def _world_rows(world: dict | None) -> list[str]:
+    """The robots as the world flew them (summary.json's ``world``: [world], docs/robots.md)."""
+    if not world:
+        return []
+    models = {}
+    for robot, model in world["models"].items():
+        models.setdefault(model, []).append(robot)
+    rows = ["| drive model (robots) | " + "; ".join(f"{m} ({', '.join(r)})" for m, r in models.items()) + " |",
+            f"| sensing: pose noise, obstacle noise, delay, range | {world['pose_noise_m']:g} m, "
+            f"{world['obstacle_noise_m']:g} m, {world['sensing_delay_ticks']} ticks, "
+            + ("unlimited" if world["sensing_range_m"] is None else f"{world['sensing_range_m']:g} m") + " |"]
+    for limit, ticks in world["saturated_ticks"].items():
+        rows.append(f"| ticks at the {limit.replace('_', ' ')} limit (robot: ticks) | "
+                    + (", ".join(f"{r}: {n}" for r, n in ticks.items()) or "none") + " |")
+    return rows
+
+
 def write_index(run: Path, summary: dict, figures: list[Path], snapshots: list[Path]) -> Path:
     """Write ``run/index.md``; figure links are relative so the folder can move."""
     title = summary.get("scenario", run.name)
@@ -49,6 +66,7 @@ def write_index(run: Path, summary: dict, figures: list[Path], snapshots: list[P
              "| quantity | value |", "| --- | --- |"]
     for robot, error in sorted((law.get("errors") or {}).items(), key=lambda kv: int(kv[0])):
         lines.append(f"| law_error, robot {robot}: ticks (first) | {error['ticks']} ({error['first']}) |")
+    lines += _world_rows(summary.get("world"))
     for key, label, form in _NUMBERS:
         if key in summary:
             lines.append(f"| {label} | {_fmt(summary[key], form)} |")
