@@ -38,12 +38,23 @@ def wmsr_trim(own: list[float], rows: list[list[float]], tolerate: int, trusted:
     m = len(rows) - trusted
     if tolerate <= 0 or m <= 0:
         return rows, 0
-    out = [list(r) for r in rows]
+    out = [r[:] for r in rows]
     discarded = 0
     for c in range(3):
         x = own[c]
-        above = [(rows[j][c], j) for j in range(m) if rows[j][c] > x]
-        below = [(rows[j][c], -j) for j in range(m) if rows[j][c] < x]
+        col = [r[c] for r in rows[:m]]
+        if tolerate == 1:  # the common case, on builtins: the last index of the max / the min
+            top = max(col)
+            if top > x:
+                out[m - 1 - col[::-1].index(top)][c] = x
+                discarded += 1
+            bottom = min(col)
+            if bottom < x:
+                out[m - 1 - col[::-1].index(bottom)][c] = x
+                discarded += 1
+            continue
+        above = [(v, j) for j, v in enumerate(col) if v > x]
+        below = [(v, -j) for j, v in enumerate(col) if v < x]
         if above:
             above.sort(reverse=True)  # largest first; of equal values the later row first
             for _, j in above[:tolerate]:
