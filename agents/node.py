@@ -65,7 +65,10 @@ class AgentNode:
         self.ph = np.array(robot.estimate, dtype=float)
         self.neighbour_ids = scenario.neighbours(robot_id)
         self.pinned = scenario.is_pinned(robot_id)
-        weights = [scenario.a[robot_id - 1, j - 1] for j in self.neighbour_ids]
+        # [estimator] estimator_graph = "oriented" (docs/estimator.md): eq. (11) sums over the
+        # upstream neighbours only (fewer hops from a pinned robot); the others' rows weigh 0.
+        a = scenario.a if scenario.estimator_graph == "undirected" else observer_weights(scenario.a, scenario.b)
+        weights = [a[robot_id - 1, j - 1] for j in self.neighbour_ids]
         if self.pinned:
             weights.append(scenario.b[robot_id - 1])
         self.weights = np.array(weights, dtype=float)
