@@ -25,8 +25,9 @@ from fxswarm.core.control import in_repulsive_zone
 from fxswarm.core.laws import LawView, checked_vector, describe_failure, limit_speed, make_law, resolve_law
 from fxswarm.core.messages import Command, Estimate, LeaderState, Message, Sense
 from fxswarm.core.observer import observer_weights, velocity_observer_rate
+from fxswarm.core.resilience import wmsr_trim
 from fxswarm.core.scenario import Scenario
-from fxswarm.faults.plan import DegradedLimits, degraded_limits
+from fxswarm.faults.plan import DegradedLimits, Lie, degraded_limits
 
 # Degraded modes, reported to the world in Command.flags (bit set) and counted per robot.
 FLAG_STALE_NEIGHBOUR = 1  # a neighbour silent longer than the staleness limit left the sums
@@ -55,7 +56,7 @@ class AgentNode:
     """
 
     def __init__(self, scenario: Scenario, robot_id: int, lockstep: bool = True,
-                 limits: DegradedLimits | None = None) -> None:
+                 limits: DegradedLimits | None = None, lie: Lie | None = None, seed: int = 0) -> None:
         self.sc = scenario
         self.id = robot_id
         self.lockstep = lockstep
@@ -64,7 +65,10 @@ class AgentNode:
         self.ph = np.array(robot.estimate, dtype=float)
         self.neighbour_ids = scenario.neighbours(robot_id)
         self.pinned = scenario.is_pinned(robot_id)
-        weights = [scenario.a[robot_id - 1, j - 1] for j in self.neighbour_ids]
+        # [estimator] estimator_graph = "oriented" (docs/estimator.md): eq. (11) sums over the
+        # upstream neighbours only (fewer hops from a pinned robot); the others' rows weigh 0.
+        a = scenario.a if scenario.estimator_graph == "undirected" else observer_weights(scenario.a, scenario.b)
+        weights = [a[robot_id - 1, j - 1] for j in self.neighbour_ids]
         if self.pinned:
             weights.append(scenario.b[robot_id - 1])
         self.weights = np.array(weights, dtype=float)
@@ -115,6 +119,13 @@ class AgentNode:
         if self.feedforward:  # the neighbours eq. (obs) listens to (upstream ones, if oriented), and weights
             row = observer_weights(scenario.a, scenario.b, scenario.observer_graph)[robot_id - 1]
             self.observer_links = [(j, float(row[j - 1])) for j in self.neighbour_ids if row[j - 1] > 0]
+        # [estimator] resilience = "w-msr" (docs/resilience.md): F, the values discarded per axis
+        # above and below its own before the law sees its rows; 0: none (the paper's, no cost).
+        self.tolerate = scenario.tolerate if scenario.resilience == "w-msr" else 0
+        self.discarded = 0  # neighbour values (per axis) discarded so far
+        # A lie fault (fxswarm.faults.plan.Lie): this robot is compromised and sends false estimates.
+        self.lie, self.lie_seed = lie, seed
+        self.lie_frozen: list[float] | None = None  # freeze: the true estimate when the lie began
 
     # --- wiring -------------------------------------------------------------------------
 
@@ -265,10 +276,22 @@ class AgentNode:
     def estimate_message(self, tick: int, t: float) -> topics.Outgoing:
         """The current estimate alone, for a tick with no command to carry it (on the command key)."""
         self.seq_said += 1
-        msg = Estimate("agent", self.id, self.seq_said, tick, t, self.id, self.ph.copy(),
+        ph = self.ph.copy() if self.lie is None else self._said(self.ph, tick, t)
+        msg = Estimate("agent", self.id, self.seq_said, tick, t, self.id, ph,
                        self.vh.copy() if self.feedforward else None)
         self.estimate_said = msg
         return self._command_topic, msg
+
+    def _said(self, ph: np.ndarray, tick: int, t: float) -> np.ndarray:
+        """The estimate this robot tells its neighbours for ``tick`` at ``t`` s: ``ph``, or, while
+        its lie fault is on, the lie (deterministic: the plan's seed, the tick)."""
+        lie = self.lie
+        if not lie.active(t):
+            return ph.copy()
+        true = ph.tolist()
+        if lie.freeze and self.lie_frozen is None:
+            self.lie_frozen = true
+        return np.array(lie.told(true, self.lie_frozen, t, tick, self.lie_seed))
 
     def said_again(self, tick: int) -> list[topics.Outgoing]:
         """Lock-step, the world asking again after a router outage: what this robot has said for
@@ -335,6 +358,9 @@ class AgentNode:
         now = s.t if self.lockstep else (self.sensed_t if self.sensed_t is not None else s.t) + self.since_sense_s
         fresh_by = now - self.limits.staleness - 1e-9  # heard before this: stale (s)
         rows, weights, stale_neighbour, no_leader = self._held_rows(fresh_by, now)
+        if self.tolerate:  # W-MSR: the law (any law) sees the trimmed rows; the leader's is trusted
+            rows, n = wmsr_trim(self.ph.tolist(), rows, self.tolerate, int(self.pinned and not no_leader))
+            self.discarded += n
         hears = len(weights) > 0
         if not hears and self.v_extrapolate is None:
             self._start_extrapolating(now)
@@ -393,6 +419,8 @@ class AgentNode:
         est_tick, est_t, est_ph, est_vh = None, None, None, None
         if estimate_at is not None:  # self.ph, self.vh: new arrays, never changed in place
             (est_tick, est_t), est_ph, est_vh = estimate_at, self.ph, self.vh if self.feedforward else None
+            if self.lie is not None:
+                est_ph = self._said(est_ph, est_tick, est_t)
         cmd = Command("agent", self.id, self.seq_said, s.tick, s.t, self.id, np.array(v), ph_used, avoid_active,
                       flags, self.link_ages(now), tuple(self.in_links.drops), vh_used if self.feedforward else None,
                       est_tick, est_t, est_ph, est_vh, law_error)

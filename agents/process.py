@@ -37,7 +37,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def build_node(scenario: Scenario, robot_id: int, args: argparse.Namespace, plan: FaultPlan):
-    node = AgentNode(scenario, robot_id, lockstep=args.clock == "lockstep", limits=plan.limits)
+    node = AgentNode(scenario, robot_id, lockstep=args.clock == "lockstep", limits=plan.limits,
+                     lie=plan.lie_of(robot_id), seed=plan.seed)
     return wrap_node(node, "agent", robot_id, plan, scenario, args)
 
 

@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "keys": ("fxswarm.security.keys", "a private CA and a certificate + key per process of a scenario (secure mode)"),
     "report": ("fxswarm.report", "PNG figures and index.md from a run folder"),
     "sweep": ("fxswarm.study.sweep", "settling time against initial error, per controller variant"),
+    "check": ("fxswarm.study.check", "whether a scenario's graph meets W-MSR's condition for F liars"),
     "campaign": ("fxswarm.study.campaign", "many in-process runs over a grid of faults and laws, with statistics"),
     "compose": ("fxswarm.launch.compose", "write a docker-compose file for a scenario"),
     "stack": ("fxswarm.launch.stack", "write a Docker Swarm stack (stack.yml) for a scenario"),

@@ -26,6 +26,7 @@ from fxswarm.core.sensing import Sensing
 from fxswarm.core.laws import LawError, make_law, resolve_law
 from fxswarm.core.paper_law import BUILTIN_LAWS, FAMILIES, builtin_name, family_gains, split_builtin
 from fxswarm.core.observer import DEFAULT_OBSERVER_GAINS, OBSERVER_GRAPHS, TRACKINGS, max_acceleration_inf
+from fxswarm.core.resilience import RESILIENCE, leader_reach
 from fxswarm.core.graph import TOPOLOGIES, adjacency, h_matrix, topology_edges, unreached_robots
 
 
@@ -71,6 +72,9 @@ class Scenario:
     tracking: str = "paper"  # [estimator] tracking: "paper" (eq. (11)) or "feedforward" (fxswarm.core.observer)
     observer: EstimatorGains | None = None  # eq. (obs)'s gains (L1, L2, L3 as K1, K2, K3); only with feedforward
     observer_graph: str = "oriented"  # [estimator] observer_graph (OBSERVER_GRAPHS): the links eq. (obs) uses
+    estimator_graph: str = "undirected"  # [estimator] estimator_graph: "oriented": eq. (11) sums upstream only
+    resilience: str = "none"  # [estimator] resilience (fxswarm.core.resilience.RESILIENCE): "w-msr" trims
+    tolerate: int = 0  # [estimator] tolerate: F, the liars W-MSR is built for (docs/resilience.md)
     logging: dict = field(repr=False, default_factory=dict)  # [logging], checked: the keys given (the logger's defaults)
     zenoh: dict = field(repr=False, default_factory=dict)  # [zenoh], checked: the keys given (the command line wins)
     ros2: "Ros2Settings | None" = None  # [ros2]: how the ROS 2 world reaches the robots (defaults if absent)
@@ -578,7 +582,8 @@ def parse(data: dict, source: str = "<scenario>", folder: str | None = None, *, 
     delay_compensation = cf.string("delay_compensation", "leader-velocity", DELAY_COMPENSATIONS)
     _check_behaviour_variant(gf, formation, variant)
     ef = top.table_at("estimator")
-    ef.check_known({"power", "tracking", "observer_K1", "observer_K2", "observer_K3", "observer_graph"})
+    ef.check_known({"power", "tracking", "observer_K1", "observer_K2", "observer_K3", "observer_graph",
+                    "resilience", "tolerate", "estimator_graph"})
     estimator = EstimatorGains(
         K1=gf.number("K1", positive=True), K2=gf.number("K2", positive=True), K3=gf.number("K3", positive=True),
         r3=gf.number("r3", positive=True), r4=gf.number("r4", positive=True),
@@ -589,6 +594,16 @@ def parse(data: dict, source: str = "<scenario>", folder: str | None = None, *, 
     tracking, observer, observer_graph = _tracking(ef, estimator, law_tracking or "paper")
     if law_tracking is not None and tracking != law_tracking:
         ef.fail("tracking", f"{law_tracking!r} or nothing with law = {cf.table['law']!r}", tracking)
+    estimator_graph = ef.string("estimator_graph", "undirected", OBSERVER_GRAPHS)
+    resilience = ef.string("resilience", "none", RESILIENCE)
+    if resilience != "none" and estimator_graph == "oriented":
+        ef.fail("estimator_graph", '"undirected" with resilience = "w-msr" (W-MSR trims every neighbour\'s '
+                "value; its graph condition is for the undirected graph)", estimator_graph)
+    tolerate = ef.integer("tolerate", 1 if resilience == "w-msr" else 0)
+    if resilience == "none" and ef.has("tolerate"):
+        ef.fail("tolerate", 'no tolerate unless resilience = "w-msr"', show_got=False)
+    if resilience == "w-msr" and tolerate < 1:
+        ef.fail("tolerate", "an integer >= 1 (F, the liars W-MSR is built for)", tolerate)
 
     # Offsets: a sinusoid shared by all robots, overridable per robot.
     ff = top.table_at("formation")
@@ -669,7 +684,7 @@ def parse(data: dict, source: str = "<scenario>", folder: str | None = None, *, 
         formation=formation, avoidance=avoidance, estimator=estimator, raw=data,
         variant=variant, estimator_variant=estimator_variant, discretisation=discretisation,
         delay_compensation=delay_compensation, tracking=tracking, observer=observer, observer_graph=observer_graph,
-        logging=_logging(top.table_at("logging")), zenoh=_zenoh(top.table_at("zenoh")),
+        estimator_graph=estimator_graph, resilience=resilience, tolerate=tolerate, logging=_logging(top.table_at("logging")), zenoh=_zenoh(top.table_at("zenoh")),
         ros2=_ros2(top.table_at("ros2")),
         law=cf.string("law") if cf.has("law") else builtin_name(variant, tracking),
         law_params=dict(cf.table_at("params").table),
@@ -686,6 +701,15 @@ def parse(data: dict, source: str = "<scenario>", folder: str | None = None, *, 
                 f"{source}: estimator.observer_K3 = {observer.K3:g} is below the leader's top acceleration "
                 f"per axis ({accel:g} m/s^2): the velocity observer's fixed-time guarantee does not hold "
                 "(docs/estimator.md)", ScenarioWarning, stacklevel=2,
+            )
+    if resilience == "w-msr":
+        unreached = leader_reach(a, b, 2 * tolerate + 1)
+        if unreached:
+            warnings.warn(
+                f"{source}: estimator.resilience = \"w-msr\" with tolerate = {tolerate}: the graph does not meet "
+                f"the condition for {tolerate} liar(s) (every robot pinned or linked to {2 * tolerate + 1} robots "
+                f"that meet it); robots {', '.join(map(str, unreached))} do not (docs/resilience.md; "
+                "fxswarm check)", ScenarioWarning, stacklevel=2,
             )
     leader_speed = leader.max_speed_inf(duration)
     if estimator.K3 < leader_speed:

@@ -130,6 +130,65 @@ class ProcessFault:
 
 
 @dataclass(frozen=True)
+class Lie:
+    """Robot ``robot`` is compromised from ``at`` s (until ``until`` s, None: to the end): the
+    estimate it sends its neighbours is false (docs/resilience.md "The fault").
+
+    What it sends at time t (the estimate's own time stamp): ``base + offset + drift (t - at) +
+    noise``, where ``base`` is its true estimate, or with ``freeze`` the true estimate it held
+    when it began to lie; ``noise`` is ``sigma`` times a standard normal per axis, drawn from
+    the plan's seed, the robot and the tick (the same in one process and over Zenoh). It flies
+    its *true* estimate (its own slot): the lie is in what it says, not in where it flies, and
+    the velocity estimate it sends (``vh``, feedforward) stays true.
+    """
+
+    robot: int
+    at: float
+    until: float | None = None
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    drift: tuple[float, float, float] = (0.0, 0.0, 0.0)  # m/s
+    noise: float = 0.0  # m, standard deviation per axis
+    freeze: bool = False
+
+    @property
+    def label(self) -> str:
+        parts = [f"lie agent:{self.robot} at={self.at:g}"]
+        if self.until is not None:
+            parts.append(f"until={self.until:g}")
+        for name in ("offset", "drift"):
+            v = getattr(self, name)
+            if any(v):
+                parts.append(f"{name}={','.join(f'{x:g}' for x in v)}")
+        if self.noise:
+            parts.append(f"noise={self.noise:g}")
+        if self.freeze:
+            parts.append("freeze")
+        return " ".join(parts)
+
+    def active(self, t: float) -> bool:
+        return self.at <= t + 1e-9 and (self.until is None or t + 1e-9 < self.until)
+
+    def told(self, true_ph: list[float], frozen: list[float] | None, t: float, tick: int, seed: int) -> list[float]:
+        """The false estimate for time ``t`` (s), tick ``tick``: from ``true_ph`` (or ``frozen``
+        when freezing: the caller keeps the first true estimate it lied about)."""
+        base = frozen if self.freeze and frozen is not None else true_ph
+        age = t - self.at
+        out = [base[c] + self.offset[c] + self.drift[c] * age for c in range(3)]
+        if self.noise > 0:
+            for c in range(3):
+                out[c] += self.noise * _normal(seed, self.robot, tick, c)
+        return out
+
+
+def _normal(seed: int, robot: int, tick: int, axis: int) -> float:
+    """A standard normal number from the seed and the key alone (Box-Muller on two hashed uniforms)."""
+    digest = hashlib.blake2b(repr((seed, "lie", robot, tick, axis)).encode(), digest_size=16).digest()
+    u1, u2 = struct.unpack("<QQ", digest)
+    u1 = (u1 + 1) / (2.0**64 + 1)  # in (0, 1): log is finite
+    return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2 / 2.0**64)
+
+
+@dataclass(frozen=True)
 class DegradedLimits:
     """How long an agent or the world trusts silence (s).
 
@@ -164,6 +223,7 @@ class FaultPlan:
     cuts: tuple[Cut, ...] = ()
     processes: tuple[ProcessFault, ...] = ()
     limits: DegradedLimits = field(default_factory=DegradedLimits)
+    lies: tuple[Lie, ...] = ()  # compromised robots: what they send (agents/node.py), not how links carry it
     _burst: dict = field(default_factory=dict, compare=False, repr=False)  # chain states per link
     _rules_of: dict = field(default_factory=dict, compare=False, repr=False)  # link -> matching rules
 
@@ -173,6 +233,10 @@ class FaultPlan:
         if self.cuts or self.processes:
             return True
         return any(fnmatchcase(receiver, r.dst) for r in self.rules)
+
+    def lie_of(self, robot: int) -> Lie | None:
+        """Robot ``robot``'s lie, if the plan makes it a liar (at most one per robot)."""
+        return next((x for x in self.lies if x.robot == robot), None)
 
     def down(self, process: str, t: float) -> bool:
         """Whether ``process`` (``agent:<id>``, ...) is killed or frozen at time ``t`` (s)."""
@@ -358,7 +422,7 @@ def parse_faults(table: dict | None, scenario_seed: int, n: int, source: str = "
     top = _Fields(source, {"faults": table})
     f = top.table_at("faults")
     f.check_known({"seed", "staleness", "sense_timeout", "silent_hold", "links", "partitions",
-                   "leader_outages", "processes"})
+                   "leader_outages", "processes", "lies"})
     limits = DegradedLimits(
         staleness=f.number("staleness", DegradedLimits.staleness, positive=True),
         sense_timeout=f.number("sense_timeout", DegradedLimits.sense_timeout, positive=True),
@@ -400,8 +464,31 @@ def parse_faults(table: dict | None, scenario_seed: int, n: int, source: str = "
         if back is not None and back <= at:
             pf.fail(back_key, f"a time after {action} ({at:g} s)", back)
         processes.append(ProcessFault(target, action, at, back))
+    lies: list[Lie] = []
+    for lf in f.tables("lies"):
+        lies.append(_lie(lf, n))
+        if sum(x.robot == lies[-1].robot for x in lies) > 1:
+            lf.fail("target", "one lie per robot (robot agent:%d lies twice)" % lies[-1].robot, show_got=False)
     seed = f.integer("seed", scenario_seed)
-    return FaultPlan(seed, tuple(rules), tuple(cuts), tuple(processes), limits)
+    return FaultPlan(seed, tuple(rules), tuple(cuts), tuple(processes), limits, tuple(lies))
+
+
+def _lie(f: _Fields, n: int) -> Lie:
+    f.check_known({"target", "at", "until", "offset", "drift", "noise", "freeze"})
+    target = _target(f, n)
+    if target == "leader":
+        f.fail("target", f"'agent:<id>' with id in 1..{n} (the leader is trusted: it is the reference)", target)
+    at = f.number("at", nonnegative=True)
+    until = f.optional_number("until")
+    if until is not None and until <= at:
+        f.fail("until", f"a time after at ({at:g} s)", until)
+    zero = (0.0, 0.0, 0.0)
+    lie = Lie(int(target[6:]), at, until, f.vector("offset", zero), f.vector("drift", zero),
+              f.number("noise", 0.0, nonnegative=True), f.boolean("freeze") if f.has("freeze") else False)
+    if not (any(lie.offset) or any(lie.drift) or lie.noise or lie.freeze):
+        f.fail("offset", "at least one of offset, drift, noise or freeze (a lie that says the truth is none)",
+               show_got=False)
+    return lie
 
 
 def plan_of(scenario: Scenario) -> FaultPlan:
@@ -427,6 +514,7 @@ CLI_HELP = (
     "reorder, reorder_delay, kinds (comma list), burst=p_gb,p_bg[,loss_good,loss_bad]; "
     "'partition START-END isolate=3[,4]' or 'partition START-END links=a->b[,c->d]'; "
     "'leader-outage START-END'; 'kill agent:2 at=10 [restart=12]'; 'freeze agent:2 at=10 [thaw=12]'; "
+    "'lie agent:3 at=5 [until=T] [offset=x,y,z] [drift=x,y,z] [noise=SIGMA] [freeze]'; "
     "'seed=N'; 'staleness=S', 'sense_timeout=S', 'silent_hold=S'"
 )
 
@@ -519,11 +607,30 @@ def _spec_table(spec: str, where: str) -> dict:
             raise ScenarioError(f"{where}: expected at=SECONDS")
         entry = {"target": rest[0], head: _cli_value(pairs.pop("at"))}
         return {"processes": [entry | {key: _cli_value(v) for key, v in pairs.items()}]}
+    if head == "lie":
+        if not rest:
+            raise ScenarioError(f"{where}: expected 'lie agent:ID at=SECONDS ...'")
+        words = rest[1:]
+        freeze = "freeze" in words
+        pairs = _pairs(where, head, [w for w in words if w != "freeze"])
+        if "at" not in pairs:
+            raise ScenarioError(f"{where}: expected at=SECONDS")
+        entry = {"target": rest[0]} | ({"freeze": True} if freeze else {})
+        for key, value in pairs.items():
+            if key in ("offset", "drift"):
+                try:
+                    entry[key] = [float(x) for x in value.split(",")]
+                except ValueError:
+                    raise ScenarioError(f"{where}: expected {key}=x,y,z (numbers, m{'/s' * (key == 'drift')}), "
+                                        f"got {value!r}") from None
+            else:
+                entry[key] = _cli_value(value)
+        return {"lies": [entry]}
     if "=" in head and not rest:
         key, value = head.split("=", 1)
         return {key: _cli_value(value)}
     raise ScenarioError(f"{where}: expected 'SRC->DST ...', 'partition', 'leader-outage', 'kill', "
-                        f"'freeze' or key=value")
+                        f"'freeze', 'lie' or key=value")
 
 
 def _pairs(where: str, head: str, words: list[str]) -> dict[str, str]:
@@ -572,10 +679,17 @@ def to_table(plan: FaultPlan) -> dict:
         if p.restart is not None:
             entry["restart" if p.action == "kill" else "thaw"] = p.restart
         processes.append(entry)
+    lies = []
+    for x in plan.lies:
+        entry = {"target": f"agent:{x.robot}", "at": x.at, "offset": list(x.offset), "drift": list(x.drift),
+                 "noise": x.noise, "freeze": x.freeze}
+        if x.until is not None:
+            entry["until"] = x.until
+        lies.append(entry)
     table: dict = {"seed": plan.seed, "staleness": plan.limits.staleness,
                    "sense_timeout": plan.limits.sense_timeout, "silent_hold": plan.limits.silent_hold}
     for key, value in (("links", links), ("partitions", partitions), ("leader_outages", outages),
-                       ("processes", processes)):
+                       ("processes", processes), ("lies", lies)):
         if value:
             table[key] = value
     return table

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fxswarm.core.metrics import summarise
+from fxswarm.core.metrics import estimate_errors, formation_errors, summarise
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.plan import FaultPlan
 from fxswarm.faults.report import fault_summary, law_summary
@@ -22,7 +22,7 @@ def build_summary(sc: Scenario, traj: dict[str, np.ndarray], plan: FaultPlan, *,
                   world=None, links: dict[str, dict[str, int]] | None = None,
                   restarts: dict[str, int] | None = None, runner: dict | None = None,
                   processes: dict[str, dict] | None = None, process_events: list[dict] | None = None,
-                  router_outages: list[dict] | None = None) -> dict:
+                  router_outages: list[dict] | None = None, discarded: dict[int, int] | None = None) -> dict:
     """The run's summary, as a dict ready for JSON.
 
     traj: the world's trajectory (arrays keyed as in ``trajectory.npz``); wall_s: the run's
@@ -33,6 +33,8 @@ def build_summary(sc: Scenario, traj: dict[str, np.ndarray], plan: FaultPlan, *,
     ``missed_ticks``, ``counters``), added after the common metrics. processes and
     process_events: see :func:`add_processes`. router_outages: the runner's
     :meth:`~fxswarm.runtime.connectivity.Connectivity.report` (none in one process).
+    discarded: robot id -> neighbour values its W-MSR trimming discarded (the in-process
+    runner's count; a process run's come with ``processes``).
 
     ``complete`` (a runner's) says every tick ran; ``degraded`` whether it ran with robots the
     world could not hear (``{"ticks": n, "robots": [ids]}``, ticks 0 for a healthy run).
@@ -47,6 +49,8 @@ def build_summary(sc: Scenario, traj: dict[str, np.ndarray], plan: FaultPlan, *,
     if sc.world is not None and drive_report is not None:  # [world]: the models, the sensing, the limits hit
         summary["world"] = drive_report()
     summary.update(fault_summary(sc, plan, traj, world, dict(links or {}), restarts))
+    if sc.resilience != "none" or plan.lies:
+        summary["resilience"] = resilience_summary(sc, plan, traj, discarded)
     if processes is not None:
         add_processes(summary, processes, process_events)
     return summary
@@ -62,6 +66,10 @@ def add_processes(summary: dict, processes: dict[str, dict], process_events: lis
     (as ``fxswarm sim`` counts its stand-ins' restarts).
     """
     summary["processes"] = processes
+    if "resilience" in summary:  # each agent counted what its trimming discarded
+        counts = {str(c["id"]): int(c["discarded"]) for c in processes.values()
+                  if c.get("role") == "agent" and "discarded" in c}
+        summary["resilience"]["discarded"] = dict(sorted(counts.items(), key=lambda kv: int(kv[0])))
     faults = summary.setdefault("faults", {})
     faults["links"] = merged_links(processes)
     if process_events:
@@ -83,3 +91,25 @@ def merged_links(processes: dict[str, dict]) -> dict[str, dict[str, int]]:
             for name in LINK_COUNTS:
                 m[name] += int(c.get(name, 0))
     return dict(sorted(merged.items()))
+
+
+def resilience_summary(sc: Scenario, plan: FaultPlan, traj: dict[str, np.ndarray],
+                       discarded: dict[int, int] | None) -> dict:
+    """summary.json's ``resilience`` (a run with ``[estimator] resilience`` or a lie fault):
+    the estimator, F, the liars, the honest robots' final formation error and nearest object,
+    and the values each robot's trimming discarded (robot ids as string keys; None when not
+    counted in this process)."""
+    liars = sorted(x.robot for x in plan.lies)
+    honest = [i for i in range(sc.n) if i + 1 not in liars]
+    t = traj["t"]
+    out: dict = {"estimator": sc.resilience, "tolerate": sc.tolerate, "liars": liars,
+                 "lies": [x.label for x in plan.lies]}
+    if len(t) and honest:
+        f_err = formation_errors(traj)[:, honest]
+        e_err = estimate_errors(traj)[:, honest]
+        near = traj["nearest_distance"][:, honest]
+        out["honest_formation_error_final_m"] = float(f_err[-1].max())
+        out["honest_estimate_error_final_m"] = float(e_err[-1].max())
+        out["honest_min_object_distance_m"] = float(near.min()) if near.size and np.isfinite(near.min()) else None
+    out["discarded"] = None if discarded is None else {str(k): int(v) for k, v in sorted(discarded.items())}
+    return out

@@ -53,7 +53,9 @@ class Simulation:
         self.world = WorldNode(sc, limits=limits)
         self.faults = SwarmFaults(sc, self.plan)  # the plan's faults, if any, on each receiver's inbox
         self.leader = self.faults.leader(lambda: LeaderNode(sc))
-        self.agents = [self.faults.agent(r.id, lambda i=r.id: AgentNode(sc, i, limits=limits)) for r in sc.robots]
+        plan = self.plan
+        self.agents = [self.faults.agent(r.id, lambda i=r.id: AgentNode(sc, i, limits=limits, lie=plan.lie_of(i),
+                                                                        seed=plan.seed)) for r in sc.robots]
         for node in (self.faults.world(self.world), self.leader, *self.agents):
             attach(self.bus, node)
 
@@ -78,7 +80,9 @@ class Simulation:
         runner = {"counters": {"bus": self.bus.counters.as_dict(), "missed_ticks": self.world.missed_ticks},
                   "speed_limited_ticks": sum(a.speed_limited for a in self.agents)}
         return build_summary(self.scenario, self.world.trajectory(), self.plan, wall_s=wall, world=self.world,
-                             links=self.faults.link_counts(), restarts=self.faults.restarts(), runner=runner)
+                             links=self.faults.link_counts(), restarts=self.faults.restarts(), runner=runner,
+                             discarded={r.id: a.discarded for r, a in zip(self.scenario.robots, self.agents)}
+                             if self.scenario.resilience != "none" else None)
 
     def trajectory(self) -> dict[str, np.ndarray]:
         return self.world.trajectory()

@@ -307,6 +307,8 @@ class RoleProcess:
         c["stop_reason"] = self.stop_reason or "done"
         c["router_outages"] = self.connectivity.report()
         c.update(process_counters(self.node))  # per-link fault counts, if a fault filter is in
+        if getattr(self.core, "tolerate", 0):  # an agent with W-MSR: the values it discarded
+            c["discarded"] = self.core.discarded
         return c
 
     def write_counters(self, extra: dict | None = None) -> None:
