@@ -140,3 +140,20 @@ def test_forty_seconds_of_a_drifting_liar_on_liar_8_and_on_the_paper_ring():
     with pytest.warns(UserWarning, match="robots 2, 3, 5, 6 do not"):
         ring = parse(data, "ring")
     assert Simulation(ring).run()["resilience"]["honest_formation_error_final_m"] > 10.0
+
+
+def test_a_campaign_grids_the_liar_its_drift_and_the_estimator(tmp_path):
+    """Which robot lies and how much are fault-template placeholders, the estimator a scenario
+    value: every cell is planned and validated before any run (docs/resilience.md)."""
+    from fxswarm.study.campaign_plan import CampaignError, Criteria, make_plan, parse_axis
+
+    axes = [parse_axis("liar=3,6"), parse_axis("rate=0.1,2"), parse_axis("estimator.resilience=none,w-msr")]
+    plan = make_plan(str(LIAR_8), load(LIAR_8), tmp_path, ["lie agent:{liar} at=5 drift={rate},0,0"], axes, [],
+                     2, 0, Criteria(1.0, None, 0.3))
+    assert len(plan.runs) == 2 * 2 * 2 * 2
+    run = next(r for r in plan.runs if r.cell == {"liar": 6, "rate": 2, "estimator.resilience": "w-msr"})
+    assert run.faults[0] == "lie agent:6 at=5 drift=2,0,0"
+    assert plan.tables[run.scenario]["estimator"]["resilience"] == "w-msr"
+    with pytest.raises(CampaignError, match="liar=9.*id in 1..8"):  # a robot the scenario does not have: refused while planning
+        make_plan(str(LIAR_8), load(LIAR_8), tmp_path, ["lie agent:{liar} at=5 drift=1,0,0"],
+                  [parse_axis("liar=3,9")], [], 1, 0, Criteria(1.0, None, 0.3))
