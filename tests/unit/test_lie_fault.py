@@ -157,3 +157,10 @@ def test_a_campaign_grids_the_liar_its_drift_and_the_estimator(tmp_path):
     with pytest.raises(CampaignError, match="liar=9.*id in 1..8"):  # a robot the scenario does not have: refused while planning
         make_plan(str(LIAR_8), load(LIAR_8), tmp_path, ["lie agent:{liar} at=5 drift=1,0,0"],
                   [parse_axis("liar=3,9")], [], 1, 0, Criteria(1.0, None, 0.3))
+
+
+def test_freeze_may_be_written_as_in_the_table():
+    sc = load(LIAR_8)
+    assert resolve(sc, ["lie agent:2 at=1 freeze=true"]).lies == resolve(sc, ["lie agent:2 at=1 freeze"]).lies
+    with pytest.raises(ScenarioError, match="true or false"):
+        resolve(sc, ["lie agent:2 at=1 offset=1,0,0 freeze=maybe"])
