@@ -21,8 +21,9 @@ def run(path, resilient, lie=True):
     return tr, s
 
 fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=False)
-for ax, path, title in ((axes[0], "configs/liar-8.toml", "liar-8 (meets the condition for F = 1)"),
-                        (axes[1], "configs/paper-fast.toml", "paper-fast ring (does not)")):
+PANELS = ((axes[0], "configs/liar-8.toml", "liar-8 (meets the condition for F = 1)"),
+          (axes[1], "configs/paper-fast.toml", "paper-fast ring (does not)"))
+for ax, path, title in PANELS:
     for resilient, colour, name in ((False, "tab:red", "paper's estimator"), (True, "tab:blue", 'resilience = "w-msr"')):
         tr, s = run(path, resilient)
         err = formation_errors(tr)

@@ -617,7 +617,9 @@ def _spec_table(spec: str, where: str) -> dict:
             raise ScenarioError(f"{where}: expected at=SECONDS")
         entry = {"target": rest[0]} | ({"freeze": True} if freeze else {})
         for key, value in pairs.items():
-            if key in ("offset", "drift"):
+            if key == "freeze":  # 'freeze' alone, or freeze=true/false as in the table
+                entry[key] = {"true": True, "false": False}.get(value.lower(), value)
+            elif key in ("offset", "drift"):
                 try:
                     entry[key] = [float(x) for x in value.split(",")]
                 except ValueError:

@@ -40,9 +40,8 @@ def main(args: argparse.Namespace) -> int:
           f"liar{'s' * (f > 1)} (W-MSR discards {f} above and {f} below, per axis)")
     if got["meets"]:
         print(f"meets the condition: every robot is pinned or linked to at least {r} robots that meet it "
-              f"(so every set of robots holds one pinned or with {r} links out of the set): with at most "
-              f"{f} liar{'s' * (f > 1)} among its neighbours, every honest robot's estimate converges to "
-              f"the leader's")
+              f"(so every set of robots holds one pinned or with {r} links out of the set): the graph "
+              f"condition W-MSR needs against {f} liar{'s' * (f > 1)} among each robot's neighbours holds")
     else:
         print(f"does NOT meet the condition: robots {', '.join(map(str, got['unreached']))} are neither "
               f"pinned nor linked to {r} robots that meet it; one liar can hold them off the leader, and "

@@ -76,7 +76,8 @@ def test_the_liar_tells_offset_drift_and_seeded_noise_from_at_on_and_the_truth_a
     assert np.array_equal(sent(node, 100), true)  # until: the truth again
     assert np.array_equal(node.ph, true)  # what it flies is its own, true estimate
     noisy = Lie(3, 0.0, None, noise=0.2)
-    a, b, c = AgentNode(sc, 3, lie=noisy, seed=7), AgentNode(sc, 3, lie=noisy, seed=7), AgentNode(sc, 3, lie=noisy, seed=8)
+    a, b = AgentNode(sc, 3, lie=noisy, seed=7), AgentNode(sc, 3, lie=noisy, seed=7)
+    c = AgentNode(sc, 3, lie=noisy, seed=8)
     assert np.array_equal(sent(a, 5), sent(b, 5)) and not np.array_equal(sent(a, 5), sent(c, 5))
     draws = np.array([sent(a, k) - true for k in range(400)])
     assert 0.15 < draws.std() < 0.25 and abs(draws.mean()) < 0.05
@@ -140,3 +141,27 @@ def test_forty_seconds_of_a_drifting_liar_on_liar_8_and_on_the_paper_ring():
     with pytest.warns(UserWarning, match="robots 2, 3, 5, 6 do not"):
         ring = parse(data, "ring")
     assert Simulation(ring).run()["resilience"]["honest_formation_error_final_m"] > 10.0
+
+
+def test_a_campaign_grids_the_liar_its_drift_and_the_estimator(tmp_path):
+    """Which robot lies and how much are fault-template placeholders, the estimator a scenario
+    value: every cell is planned and validated before any run (docs/resilience.md)."""
+    from fxswarm.study.campaign_plan import CampaignError, Criteria, make_plan, parse_axis
+
+    axes = [parse_axis("liar=3,6"), parse_axis("rate=0.1,2"), parse_axis("estimator.resilience=none,w-msr")]
+    template = "lie agent:{liar} at=5 drift={rate},0,0"
+    plan = make_plan(str(LIAR_8), load(LIAR_8), tmp_path, [template], axes, [], 2, 0, Criteria(1.0, None, 0.3))
+    assert len(plan.runs) == 2 * 2 * 2 * 2
+    run = next(r for r in plan.runs if r.cell == {"liar": 6, "rate": 2, "estimator.resilience": "w-msr"})
+    assert run.faults[0] == "lie agent:6 at=5 drift=2,0,0"
+    assert plan.tables[run.scenario]["estimator"]["resilience"] == "w-msr"
+    with pytest.raises(CampaignError, match="liar=9.*id in 1..8"):  # no robot 9: refused before any run
+        make_plan(str(LIAR_8), load(LIAR_8), tmp_path, ["lie agent:{liar} at=5 drift=1,0,0"],
+                  [parse_axis("liar=3,9")], [], 1, 0, Criteria(1.0, None, 0.3))
+
+
+def test_freeze_may_be_written_as_in_the_table():
+    sc = load(LIAR_8)
+    assert resolve(sc, ["lie agent:2 at=1 freeze=true"]).lies == resolve(sc, ["lie agent:2 at=1 freeze"]).lies
+    with pytest.raises(ScenarioError, match="true or false"):
+        resolve(sc, ["lie agent:2 at=1 offset=1,0,0 freeze=maybe"])

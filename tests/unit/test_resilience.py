@@ -4,6 +4,7 @@ against direct implementations written from the definitions."""
 from __future__ import annotations
 
 import itertools
+import json
 
 import numpy as np
 import pytest
@@ -150,3 +151,19 @@ def test_the_shipped_liar_scenario_meets_the_condition_and_the_paper_ring_does_n
     ring = load(CONFIGS / "paper-fast.toml")
     got = check_graph(ring.a, ring.b, 1)
     assert not got["meets"] and got["unreached"] == [2, 3, 5, 6] and got["robustness"] == 1
+
+
+def test_fxswarm_check_says_it_and_exits_0_or_1(capsys):
+    from fxswarm.cli import main
+
+    assert main(["check", str(CONFIGS / "liar-8.toml")]) == 0
+    out = capsys.readouterr().out
+    assert "meets the condition" in out and "3-robust (exact)" in out
+    assert main(["check", str(CONFIGS / "paper-fast.toml")]) == 1
+    assert "robots 2, 3, 5, 6 are neither pinned nor linked to 3" in capsys.readouterr().out
+    assert main(["check", str(CONFIGS / "liar-8.toml"), "--tolerate", "2", "--json"]) == 1
+    got = json.loads(capsys.readouterr().out)
+    assert got["r"] == 5 and got["unreached"] == [4, 5, 6, 7, 8] and got["pinned"] == [1, 2, 3]
+    with pytest.raises(SystemExit) as exc:
+        main(["check", "no-such.toml"])
+    assert exc.value.code == 2
