@@ -31,7 +31,7 @@ import numpy as np
 
 from fxswarm.core.scenario import RUN_TOPOLOGIES
 from fxswarm.faults.plan import CLI_HELP as FAULT_HELP
-# The launcher's parts, by their former home's names (fxswarm.testing and tests import them here).
+# The launcher's parts, by their former home's names (tests and benchmarks import them from here).
 from fxswarm.launch.plan import MESH_MAX_ROBOTS, auto_topology, free_port, topology_options  # noqa: F401
 from fxswarm.launch.processes import ZENOH_RUNTIME, Child, Death  # noqa: F401
 from fxswarm.launch.swarm import MAX_ROUTER_RESTARTS, Swarm
