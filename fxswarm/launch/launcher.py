@@ -31,8 +31,8 @@ import numpy as np
 
 from fxswarm.core.scenario import RUN_TOPOLOGIES
 from fxswarm.faults.plan import CLI_HELP as FAULT_HELP
-# The launcher's parts, by their former home's names (fxswarm.testing and tests import them here).
-from fxswarm.launch.plan import MESH_MAX_ROBOTS, auto_topology, free_port, free_ports, topology_options  # noqa: F401
+# The launcher's parts, by their former home's names (tests and benchmarks import them from here).
+from fxswarm.launch.plan import MESH_MAX_ROBOTS, auto_topology, free_port, topology_options  # noqa: F401
 from fxswarm.launch.processes import ZENOH_RUNTIME, Child, Death  # noqa: F401
 from fxswarm.launch.swarm import MAX_ROUTER_RESTARTS, Swarm
 from fxswarm.launch.watch import StartError
@@ -238,13 +238,8 @@ def _fly(swarm: Swarm, args: argparse.Namespace, say, seen: _Outcome) -> None:
         seen.code = 1
 
 
-def _stop(swarm: Swarm, args: argparse.Namespace, code: int) -> None:
-    for sig in (signal.SIGINT, signal.SIGTERM):  # a second Ctrl-C must not cut the clean-up short
-        signal.signal(sig, signal.SIG_IGN)
-    world = swarm.children.get("world")
-    finished = world is not None and world.popen is not None and world.popen.returncode == 0
-    how = swarm.stop(grace=3.0 if finished else 0.0)
-    stopped = {k: v for k, v in how.items() if v != "exited"}
+def _say_stopped(swarm: Swarm, args: argparse.Namespace, code: int) -> None:
+    stopped = {k: v for k, v in swarm.stopped.items() if v != "exited"}
     if stopped and (code or not args.quiet):
         print("fxswarm run: stopped " + ", ".join(f"{k} ({v})" for k, v in stopped.items()), file=sys.stderr)
 
@@ -284,15 +279,18 @@ def main(args: argparse.Namespace) -> int:
     # --quiet hides the chatter (start, planned faults, progress, the summary), never a warning.
     say = (lambda *a: None) if args.quiet else (lambda text: print(text, file=sys.stderr))
     seen = _Outcome()
-    try:
-        _fly(swarm, args, say, seen)
-    except StartError as exc:
-        print(f"fxswarm run: the swarm did not start: {exc}", file=sys.stderr)
-        seen.code = 1
-    except KeyboardInterrupt:
-        seen.code = 130
-        print("\nfxswarm run: interrupted", file=sys.stderr)
-    finally:
-        _stop(swarm, args, seen.code)
+    with swarm:  # leaving it stops every process the run started
+        try:
+            _fly(swarm, args, say, seen)
+        except StartError as exc:
+            print(f"fxswarm run: the swarm did not start: {exc}", file=sys.stderr)
+            seen.code = 1
+        except KeyboardInterrupt:
+            seen.code = 130
+            print("\nfxswarm run: interrupted", file=sys.stderr)
+        finally:
+            for sig in (signal.SIGINT, signal.SIGTERM):  # a second Ctrl-C must not cut the clean-up short
+                signal.signal(sig, signal.SIG_IGN)
+    _say_stopped(swarm, args, seen.code)
     _report(swarm, args, seen, recording, started)
     return seen.code

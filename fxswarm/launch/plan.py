@@ -21,7 +21,7 @@ from pathlib import Path
 from fxswarm.core.scenario import RUN_TOPOLOGIES, Scenario
 from fxswarm.faults.plan import FaultPlan, dumps, plan_of
 from fxswarm.runtime.router import router_settings
-from fxswarm.runtime.tls import TlsFiles, files_for
+from fxswarm.runtime.tls import files_for
 from fxswarm.runtime.zenoh_bus import ZenohOptions
 
 # "auto" meshes swarms up to this many robots. Measured (docs/design.md "Topology";

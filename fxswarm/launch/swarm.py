@@ -111,6 +111,7 @@ class Swarm:
         self.watch = Watch(self.state_listener)
         self.router_restarts = 0
         self.schedule = ProcessSchedule(self.plan.processes)
+        self.stopped: dict[str, str] = {}  # what leaving `with swarm:` did, {name: how}
 
     # --- what the plan decided, and what is running -------------------------------------------
 
@@ -296,6 +297,16 @@ class Swarm:
         self.wait_alive(name, timeout)
 
     # --- stop and results ----------------------------------------------------------------------
+
+    def __enter__(self) -> Swarm:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        """Leaving ``with swarm:`` stops every process it started (:meth:`stop`; a finished run's
+        processes get time to leave by themselves); what it did is in :attr:`stopped`."""
+        world = self.children.get("world")
+        finished = world is not None and world.popen is not None and world.popen.poll() == 0
+        self.stopped = self.stop(grace=3.0 if finished else 0.0)
 
     def stop(self, budget: float = STOP_BUDGET_S, grace: float = 0.0) -> dict[str, str]:
         """End every process within ``budget`` s; return ``{name: how}``.
