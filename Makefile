@@ -59,6 +59,9 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_shutdown.py --rounds 1
 	$(PY) benchmarks/bench_liveliness.py --rounds 1 --lease-ms 2000
 	$(PY) benchmarks/bench_campaign.py --repeats 1 --duration 5 --seeds 2
+	$(PY) benchmarks/bench_floor.py --repeat 1 --ticks 1000
+	$(PY) benchmarks/bench_topology.py --sizes 6,8 --rounds 1 --ticks 800
+	$(PY) benchmarks/bench_logger.py --repeats 1 --duration 5
 
 clean:
 	rm -rf $(VENV) runs build dist .pytest_cache

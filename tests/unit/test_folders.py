@@ -50,3 +50,14 @@ def test_the_worker_pool_ends_its_own_workers_only(tmp_path):
     finally:
         bystander.terminate()
         bystander.join(10)
+
+
+def test_report_refuses_a_campaign_folder_with_a_broken_line_naming_it(tmp_path, capsys):
+    import argparse
+
+    from fxswarm.report import main
+
+    (tmp_path / "campaign.json").write_text("{}")
+    (tmp_path / RUNS).write_text('{"id": "a"}\nnot json\n')
+    assert main(argparse.Namespace(dir=str(tmp_path))) == 2
+    assert f"{tmp_path / RUNS}:2: expected a JSON line" in capsys.readouterr().err

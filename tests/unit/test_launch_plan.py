@@ -78,3 +78,31 @@ def test_options_that_do_not_go_together_are_refused_in_the_plan(tmp_path):
         plan_of(tmp_path, secure="keys", audit=True, topology="mesh")
     with pytest.raises(ValueError, match="topology"):
         plan_of(tmp_path, topology="star")
+
+
+def test_poll_only_reports_a_dead_router_and_supervise_starts_it_again(tmp_path):
+    import subprocess
+
+    from fxswarm.launch.processes import Child
+    from fxswarm.launch.swarm import Swarm
+
+    swarm = Swarm(str(PAPER_FAST), tmp_path, logger=False)
+    world = swarm.processes.add(Child("world", "world", 0, [sys.executable, "-c", "import sys; sys.stdin.read()"],
+                                      tmp_path / "world.log"))
+    router = swarm.processes.add(Child("router", "router", 0, [sys.executable, "-c", "import time; time.sleep(60)"],
+                                       tmp_path / "router.log"))
+    world.popen = subprocess.Popen(world.argv, stdin=subprocess.PIPE)
+    router.popen = subprocess.Popen([sys.executable, "-c", "pass"])
+    router.popen.wait()
+    dead = router.popen
+    try:
+        deaths = swarm.poll(0)
+        assert [(d.child.name, d.restarted) for d in deaths] == [("router", False)]
+        assert router.popen is dead and swarm.router_restarts == 0  # poll started nothing
+        assert swarm.poll(0) == []  # each death once
+        assert [d.restarted for d in swarm.supervise(deaths)] == [True]
+        assert router.popen is not dead and router.running() and swarm.router_restarts == 1
+    finally:
+        world.popen.stdin.close()
+        how = swarm.stop(budget=2.0)
+    assert how["router"] == "SIGTERM" and not router.running() and not world.running()
