@@ -546,14 +546,8 @@ def _law(scenario: Scenario, cf: _Fields) -> None:
         raise ScenarioError(f"{scenario.source}: {cf.sub_path('law')}: {exc}") from None
 
 
-def parse(data: dict, source: str = "<scenario>", folder: str | None = None, *, check_law: bool = True) -> Scenario:
-    """Validate a parsed TOML document into a :class:`Scenario`. ``folder``: where a law module
-    named ``module:Class`` is looked for first (default: the folder of ``source``, if a file);
-    ``check_law=False``: the law is not imported (for an observer, which flies nothing)."""
-    top = _Fields(source, data)
-    top.check_known({"scenario", "gains", "estimator", "graph", "leader", "formation", "robots",
-                     "obstacles", "faults", "controller", "logging", "zenoh", "ros2", "world"})
-    sc = top.table_at("scenario", required=True)
+def _header(sc: _Fields, source: str) -> tuple[str, float, float]:
+    """``[scenario]``'s name, duration and dt, checked."""
     sc.check_known({"name", "duration", "dt", "seed", "settle_tolerance", "d", "v_max"})
     name = sc.string("name", FilePath(source).stem)
     if not is_swarm_name(name):  # it names the run's folder and, by default, its swarm
@@ -562,7 +556,12 @@ def parse(data: dict, source: str = "<scenario>", folder: str | None = None, *, 
     dt = sc.number("dt", positive=True)
     if dt > duration:
         sc.fail("dt", f"a control period no longer than the duration ({duration:g} s)", dt)
+    return name, duration, dt
 
+
+def _control(top: _Fields, source: str) -> dict:
+    """``[gains]``, ``[controller]`` and ``[estimator]``: the law's gains and settings, as the
+    :class:`Scenario` fields of those names (and ``law`` from ``[controller] law`` or the variant)."""
     gf = top.table_at("gains", required=True)
     gf.check_known({"b1", "b2", "r0", "r1", "r2", "lam_f", "lam_o", "K1", "K2", "K3", "r3", "r4", "r5", "r6"})
     cf = top.table_at("controller")
@@ -571,17 +570,25 @@ def parse(data: dict, source: str = "<scenario>", folder: str | None = None, *, 
     if family is not None:
         gf = _Fields(source, family_gains(gf.table, family), gf.path)
     formation = _behaviour(gf, "lam_f", 1.0)
-    avoidance = _behaviour(gf, "lam_o", 1.0)
     variant = cf.string("variant", family or "fixed-time", VARIANTS)
     estimator_variant = cf.string("estimator_variant", variant, VARIANTS)
     if family is not None and (variant, estimator_variant) != (family, family):
         cf.fail("variant" if variant != family else "estimator_variant",
                 f"{family!r} or nothing with law = {cf.table['law']!r}",
                 variant if variant != family else estimator_variant)
-    discretisation = cf.string("discretisation", "euler", DISCRETISATIONS)
-    delay_compensation = cf.string("delay_compensation", "leader-velocity", DELAY_COMPENSATIONS)
+    out = dict(formation=formation, avoidance=_behaviour(gf, "lam_o", 1.0), variant=variant,
+               estimator_variant=estimator_variant,
+               discretisation=cf.string("discretisation", "euler", DISCRETISATIONS),
+               delay_compensation=cf.string("delay_compensation", "leader-velocity", DELAY_COMPENSATIONS))
     _check_behaviour_variant(gf, formation, variant)
-    ef = top.table_at("estimator")
+    out.update(_estimator(top.table_at("estimator"), gf, estimator_variant, law_tracking, cf))
+    out.update(law=cf.string("law") if cf.has("law") else builtin_name(variant, out["tracking"]),
+               law_params=dict(cf.table_at("params").table))
+    return out
+
+
+def _estimator(ef: _Fields, gf: _Fields, estimator_variant: str, law_tracking: str | None, cf: _Fields) -> dict:
+    """``[estimator]`` with the estimator's gains from ``[gains]``, as :class:`Scenario` fields."""
     ef.check_known({"power", "tracking", "observer_K1", "observer_K2", "observer_K3", "observer_graph",
                     "resilience", "tolerate", "estimator_graph"})
     estimator = EstimatorGains(
@@ -604,13 +611,17 @@ def parse(data: dict, source: str = "<scenario>", folder: str | None = None, *, 
         ef.fail("tolerate", 'no tolerate unless resilience = "w-msr"', show_got=False)
     if resilience == "w-msr" and tolerate < 1:
         ef.fail("tolerate", "an integer >= 1 (F, the liars W-MSR is built for)", tolerate)
+    return dict(estimator=estimator, tracking=tracking, observer=observer, observer_graph=observer_graph,
+                estimator_graph=estimator_graph, resilience=resilience, tolerate=tolerate)
 
-    # Offsets: a sinusoid shared by all robots, overridable per robot.
+
+def _robots(top: _Fields) -> tuple[list[_Fields], list[Robot]]:
+    """The ``[[robots]]`` tables and their robots (offsets: a sinusoid shared by all robots,
+    ``[formation]``, overridable per robot)."""
     ff = top.table_at("formation")
     ff.check_known({"amplitude", "omega", "phase"})
     zero = (0.0, 0.0, 0.0)
     shared = {k: ff.vector(k, zero) for k in ("amplitude", "omega", "phase")}
-
     robot_tables = top.tables("robots", required=True)
     if not robot_tables:
         top.fail("robots", "at least one [[robots]] table", show_got=False)
@@ -622,37 +633,44 @@ def parse(data: dict, source: str = "<scenario>", folder: str | None = None, *, 
             *(rf.vector(key, shared[key]) for key in ("amplitude", "omega", "phase")),
         )
         robots.append(Robot(k + 1, rf.vector("position"), offset, rf.vector("estimate", zero)))
-    n = len(robots)
+    return robot_tables, robots
 
-    grf = top.table_at("graph", required=True)
-    grf.check_known({"topology", "edges", "weights", "pinned", "pin_gain"})
+
+def _edges(grf: _Fields, source: str, n: int) -> tuple[list[tuple[int, int]], list[float] | None]:
+    """``[graph]``'s edges (from ``topology`` or ``edges``) and their weights (None: all 1)."""
     if grf.has("edges") == grf.has("topology"):
         grf.fail("topology", "exactly one of 'topology' (" + ", ".join(TOPOLOGIES) + ") or 'edges'",
                  show_got=False)
     if grf.has("topology"):
         if grf.has("weights"):
             grf.fail("weights", "weights only with 'edges' (a topology's edges all weigh 1)", show_got=False)
-        edges = topology_edges(grf.string("topology", choices=TOPOLOGIES), n)
-        weights = None
-    else:
-        raw_edges = grf.table.get("edges")
-        if not isinstance(raw_edges, list):
-            grf.fail("edges", "a list of [i, j] robot id pairs", raw_edges)
-        edges = []
-        ef_ = _Fields(source, {}, grf.sub_path("edges"))
-        for k, e in enumerate(raw_edges):
-            if (not isinstance(e, list) or len(e) != 2 or not all(isinstance(x, int) and not isinstance(x, bool)
-                                                                  for x in e)):
-                ef_.fail(k, "a pair [i, j] of robot ids", e)
-            if not all(1 <= x <= n for x in e) or e[0] == e[1]:
-                ef_.fail(k, f"two different robot ids in 1..{n}", e)
-            edges.append((e[0], e[1]))
-        weights = grf.numbers("weights") if grf.has("weights") else None
-        if weights is not None:
-            if len(weights) != len(edges):
-                grf.fail("weights", f"one weight per edge ({len(edges)})", f"{len(weights)}")
-            if any(w < 0 for w in weights):
-                grf.fail("weights", "weights >= 0", weights)
+        return topology_edges(grf.string("topology", choices=TOPOLOGIES), n), None
+    raw_edges = grf.table.get("edges")
+    if not isinstance(raw_edges, list):
+        grf.fail("edges", "a list of [i, j] robot id pairs", raw_edges)
+    edges = []
+    ef_ = _Fields(source, {}, grf.sub_path("edges"))
+    for k, e in enumerate(raw_edges):
+        if (not isinstance(e, list) or len(e) != 2 or not all(isinstance(x, int) and not isinstance(x, bool)
+                                                              for x in e)):
+            ef_.fail(k, "a pair [i, j] of robot ids", e)
+        if not all(1 <= x <= n for x in e) or e[0] == e[1]:
+            ef_.fail(k, f"two different robot ids in 1..{n}", e)
+        edges.append((e[0], e[1]))
+    weights = grf.numbers("weights") if grf.has("weights") else None
+    if weights is not None:
+        if len(weights) != len(edges):
+            grf.fail("weights", f"one weight per edge ({len(edges)})", f"{len(weights)}")
+        if any(w < 0 for w in weights):
+            grf.fail("weights", "weights >= 0", weights)
+    return edges, weights
+
+
+def _graph(grf: _Fields, source: str, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``[graph]`` as the adjacency ``a`` (n, n) and the pinning gains ``b`` (n,), checked: every
+    robot reaches one that hears the leader."""
+    grf.check_known({"topology", "edges", "weights", "pinned", "pin_gain"})
+    edges, weights = _edges(grf, source, n)
     raw_pinned = grf.table.get("pinned")
     if not isinstance(raw_pinned, list) or not all(isinstance(x, int) and not isinstance(x, bool)
                                                    for x in raw_pinned):
@@ -672,54 +690,68 @@ def parse(data: dict, source: str = "<scenario>", folder: str | None = None, *, 
         grf.fail(None, "a connected graph in which every robot reaches one that hears the leader "
                  f"(H = L + diag(b) positive definite); robots {lost} are cut off from pinned robots "
                  f"{sorted(raw_pinned)}", show_got=False)
+    return a, b
 
+
+def parse(data: dict, source: str = "<scenario>", folder: str | None = None, *, check_law: bool = True) -> Scenario:
+    """Validate a parsed TOML document into a :class:`Scenario`. ``folder``: where a law module
+    named ``module:Class`` is looked for first (default: the folder of ``source``, if a file);
+    ``check_law=False``: the law is not imported (for an observer, which flies nothing)."""
+    top = _Fields(source, data)
+    top.check_known({"scenario", "gains", "estimator", "graph", "leader", "formation", "robots",
+                     "obstacles", "faults", "controller", "logging", "zenoh", "ros2", "world"})
+    sc = top.table_at("scenario", required=True)
+    name, duration, dt = _header(sc, source)
+    control = _control(top, source)
+    robot_tables, robots = _robots(top)
+    a, b = _graph(top.table_at("graph", required=True), source, len(robots))
     leader = _path(top.table_at("leader", required=True), LEADER_KINDS)
     obstacles = tuple(_path(of, OBSTACLE_KINDS) for of in top.tables("obstacles"))
-
+    v_max, d = sc.optional_number("v_max", positive=True), sc.number("d", positive=True)
     scenario = Scenario(
         name=name, source=source, duration=duration, dt=dt, seed=sc.integer("seed", 0),
-        settle_tolerance=sc.number("settle_tolerance", 0.2, positive=True),
-        d=sc.number("d", positive=True), v_max=sc.optional_number("v_max", positive=True),
-        robots=tuple(robots), a=a, b=b, leader=leader, obstacles=obstacles,
-        formation=formation, avoidance=avoidance, estimator=estimator, raw=data,
-        variant=variant, estimator_variant=estimator_variant, discretisation=discretisation,
-        delay_compensation=delay_compensation, tracking=tracking, observer=observer, observer_graph=observer_graph,
-        estimator_graph=estimator_graph, resilience=resilience, tolerate=tolerate,
+        settle_tolerance=sc.number("settle_tolerance", 0.2, positive=True), d=d, v_max=v_max,
+        robots=tuple(robots), a=a, b=b, leader=leader, obstacles=obstacles, raw=data, **control,
         logging=_logging(top.table_at("logging")), zenoh=_zenoh(top.table_at("zenoh")),
         ros2=_ros2(top.table_at("ros2")),
-        law=cf.string("law") if cf.has("law") else builtin_name(variant, tracking),
-        law_params=dict(cf.table_at("params").table),
         law_folder=folder if folder is not None else _folder_of(source),
-        world=_world(top.table_at("world"), robot_tables, robots, sc.optional_number("v_max", positive=True),
-                     sc.number("d", positive=True), leader, duration),
+        world=_world(top.table_at("world"), robot_tables, robots, v_max, d, leader, duration),
     )
     if check_law:
-        _law(scenario, cf)
+        _law(scenario, top.table_at("controller"))
+    _warn_assumptions(scenario)
+    return scenario
+
+
+def _warn_assumptions(scenario: Scenario) -> None:
+    """A :class:`ScenarioWarning` for each assumption of the paper (or of W-MSR) the valid
+    ``scenario`` breaks."""
+    source, leader, observer = scenario.source, scenario.leader, scenario.observer
     if observer is not None:
         accel = max_acceleration_inf(leader)
         if observer.K3 < accel:
             warnings.warn(
                 f"{source}: estimator.observer_K3 = {observer.K3:g} is below the leader's top acceleration "
                 f"per axis ({accel:g} m/s^2): the velocity observer's fixed-time guarantee does not hold "
-                "(docs/estimator.md)", ScenarioWarning, stacklevel=2,
+                "(docs/estimator.md)", ScenarioWarning, stacklevel=3,
             )
-    if resilience == "w-msr":
-        unreached = leader_reach(a, b, 2 * tolerate + 1)
+    tolerate = scenario.tolerate
+    if scenario.resilience == "w-msr":
+        unreached = leader_reach(scenario.a, scenario.b, 2 * tolerate + 1)
         if unreached:
             warnings.warn(
                 f"{source}: estimator.resilience = \"w-msr\" with tolerate = {tolerate}: the graph does not meet "
                 f"the condition for {tolerate} liar(s) (every robot pinned or linked to {2 * tolerate + 1} robots "
                 f"that meet it); robots {', '.join(map(str, unreached))} do not (docs/resilience.md; "
-                "fxswarm check)", ScenarioWarning, stacklevel=2,
+                "fxswarm check)", ScenarioWarning, stacklevel=3,
             )
-    leader_speed = leader.max_speed_inf(duration)
-    if estimator.K3 < leader_speed:
+    leader_speed = leader.max_speed_inf(scenario.duration)
+    if scenario.estimator.K3 < leader_speed:
         warnings.warn(
-            f"{source}: gains.K3 = {estimator.K3:g} is below the leader's top speed per axis "
+            f"{source}: gains.K3 = {scenario.estimator.K3:g} is below the leader's top speed per axis "
             f"({leader_speed:g} m/s): the estimator's fixed-time guarantee (Assumption 1) does not hold",
-            ScenarioWarning, stacklevel=2,
+            ScenarioWarning, stacklevel=3,
         )
-    return scenario
 
 
 class ScenarioWarning(UserWarning):
