@@ -24,6 +24,7 @@ from fxswarm.core.control import BehaviourGains, EstimatorGains
 from fxswarm.core.laws import LawError, make_law, resolve_law
 from fxswarm.core.paper_law import BUILTIN_LAWS, FAMILIES, builtin_name, family_gains, split_builtin
 from fxswarm.core.observer import DEFAULT_OBSERVER_GAINS, OBSERVER_GRAPHS, TRACKINGS, max_acceleration_inf
+from fxswarm.core.swarm import expand as expand_swarm
 from fxswarm.core.graph import TOPOLOGIES, adjacency, h_matrix, topology_edges, unreached_robots
 
 
@@ -477,6 +478,7 @@ def parse(data: dict, source: str = "<scenario>", folder: str | None = None, *, 
     """Validate a parsed TOML document into a :class:`Scenario`. ``folder``: where a law module
     named ``module:Class`` is looked for first (default: the folder of ``source``, if a file);
     ``check_law=False``: the law is not imported (for an observer, which flies nothing)."""
+    data = expand_swarm(data, source, folder if folder is not None else _folder_of(source))  # [swarm] -> robots
     top = _Fields(source, data)
     top.check_known({"scenario", "gains", "estimator", "graph", "leader", "formation", "robots",
                      "obstacles", "faults", "controller", "logging", "zenoh", "ros2"})
