@@ -237,10 +237,15 @@ def _metric_edges(graph: str, pts: np.ndarray, spacing: float, k: int, radius: f
             kk = min(k, n - 1)
             if kk <= 0:
                 continue
-            # lexicographic (distance, id): stable sort on distance keeps ascending ids among ties
-            order = np.argsort(d2, axis=1, kind="stable")[:, :kk]
-            for i, js in zip(own.tolist(), order.tolist()):
-                edges += [(i + 1, j + 1) for j in js]
+            # the k smallest by (distance, id): all within the k-th distance, ordered, the first k kept
+            kth = np.partition(d2, kk - 1, axis=1)[:, kk - 1]
+            ii, jj = np.nonzero(d2 <= kth[:, None])
+            order = np.lexsort((jj, d2[ii, jj], ii))
+            ii, jj = ii[order], jj[order]
+            first = np.searchsorted(ii, np.arange(len(kth)))
+            rank = np.arange(len(ii)) - first[ii]
+            keep = rank < kk
+            edges += list(zip((ii[keep] + rows.start + 1).tolist(), (jj[keep] + 1).tolist()))
         else:
             ii, jj = np.nonzero(d2 <= limit)
             ii = ii + rows.start
