@@ -15,10 +15,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import numpy as np
+
 from fxswarm.core.control import (
-    ControlOutput, ControlParameters, Vec, behaviour_velocity, estimator_rate_step, in_repulsive_zone,
+    COINCIDENT_PUSH_DIRECTION, EPS, powers, ControlOutput, ControlParameters, Vec, behaviour_velocity, estimator_rate_step, in_repulsive_zone,
 )
-from fxswarm.core.laws import LawError, LawView, limit_speed
+from fxswarm.core.laws import BatchUnsupported, LawError, LawView, limit_speed
 
 #: The law families of the paper's law: the same equations, exponents chosen for fixed-time
 #: (the paper), asymptotic or finite-time convergence (fxswarm.core.scenario VARIANTS).
@@ -166,3 +168,115 @@ def robot_control(
     e = [p[0] - ph[0] - p0[0], p[1] - ph[1] - p0[1], p[2] - ph[2] - p0[2]]  # eq. (ctbf)
     active = po is not None and in_repulsive_zone(p, po, law.d)
     return ControlOutput(v, list(dph), e, active, limited)
+
+
+class BehaviouralBatch:
+    """The batch form of :class:`BehaviouralLaw`: every robot's step at once, on arrays.
+
+    The same law, operation for operation: each robot's sums run over its rows in the
+    per-robot order (a loop over neighbour slots, vectorised across robots), every power is
+    :func:`fxswarm.core.control.powers` (the C library's pow, as ``**`` in the per-robot form),
+    and the rest is elementwise +, -, *, /, sqrt, correctly rounded in both. So its
+    trajectories equal the per-robot path's bit for bit (tests/unit/test_batch.py).
+
+    Explicit Euler, ``tracking = "paper"`` only: anything else raises
+    :class:`~fxswarm.core.laws.BatchUnsupported` (the simulator then steps per robot).
+
+    ``slots``: (n, S) int, robot i's s-th row: an index into ``[ph of the n robots; p0]``;
+    ``weights``: (n, S) its ``a_ij`` / ``b_i``; ``valid``: (n, S) bool, whether the slot holds a row.
+    """
+
+    def __init__(self, scenario, slots: np.ndarray, weights: np.ndarray, valid: np.ndarray) -> None:
+        sc = scenario
+        if sc.discretisation != "euler":
+            raise BatchUnsupported(f"discretisation = {sc.discretisation!r} (the batch form is explicit Euler)")
+        if sc.tracking != "paper":
+            raise BatchUnsupported(f"[estimator] tracking = {sc.tracking!r}")
+        self.formation, self.avoidance, self.estimator, self.d = sc.formation, sc.avoidance, sc.estimator, sc.d
+        self.slots, self.weights, self.valid = slots, weights, valid
+        self.pairwise = sc.estimator.power != "aggregate"
+        # per slot: the robots that have a row there (all of them for the first slots, typically)
+        self._rows = [None if valid[:, s].all() else np.flatnonzero(valid[:, s]) for s in range(slots.shape[1])]
+
+    def estimate_rates(self, ph: np.ndarray, p0: np.ndarray) -> np.ndarray:
+        """``dph/dt`` of every robot, (n, 3): eq. (11), as :func:`fxswarm.core.control.estimator_rate`."""
+        g = self.estimator
+        a1, a2 = g.r3 / g.r4, g.r5 / g.r6
+        n = len(ph)
+        src = np.concatenate([ph, p0.reshape(1, 3)])
+        P, Q, E = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+        for s, rows in enumerate(self._rows):
+            if rows is None:
+                X, Y, W = ph, src[self.slots[:, s]], self.weights[:, s, None]
+            else:
+                X, Y, W = ph[rows], src[self.slots[rows, s]], self.weights[rows, s, None]
+            D = X - Y
+            if rows is None:
+                E = E + W * D
+            else:
+                E[rows] = E[rows] + W * D
+            if self.pairwise:  # w * sig(d, a) where d != 0, added in the same order
+                r, ax = np.nonzero(D != 0.0)
+                d = D[r, ax]
+                ad, w = np.abs(d), W[r, 0]
+                at = (r, ax) if rows is None else (rows[r], ax)
+                P[at] = P[at] + np.copysign(w * powers(ad, a1), d)
+                Q[at] = Q[at] + np.copysign(w * powers(ad, a2), d)
+        if not self.pairwise:
+            nz = E != 0.0
+            e = E[nz]
+            ad = np.abs(e)
+            P[nz] = np.copysign(powers(ad, a1), e)
+            Q[nz] = np.copysign(powers(ad, a2), e)
+        sign = np.where(E > 0.0, g.K3, np.where(E < 0.0, -g.K3, 0.0))
+        return -g.K1 * P - g.K2 * Q - sign
+
+    @staticmethod
+    def task_rates(x: np.ndarray, g) -> np.ndarray:
+        """:func:`fxswarm.core.control.task_rate` of each element of ``x``."""
+        out = np.zeros(len(x))
+        pos = x > 0.0
+        xp = x[pos]
+        out[pos] = g.lam * powers(g.b1 * powers(xp, g.r1) + g.b2 * powers(xp, g.r2), g.r0)
+        return out
+
+    def velocities(self, p, ph, dph, offset, offset_rate, po, vo, sensed) -> tuple[np.ndarray, np.ndarray]:
+        """``(v, avoid_active)``: eq. (v2) merged with eq. (v1) by eq. (v) inside the repulsive zone,
+        as :func:`fxswarm.core.control.behaviour_velocity` (no speed limit). ``sensed``: (n,) whether
+        the robot senses an object (``po``, ``vo`` rows are ignored where not)."""
+        e = p - ph - offset  # eq. (ctbf)
+        ff = dph + offset_rate
+        e2 = _dot(e, e)
+        big = ~(e2 < EPS * EPS)
+        v = ff.copy()
+        eb, e2b, ffb = e[big], e2[big], ff[big]
+        c = -self.task_rates(0.5 * e2b, self.formation) + _dot(eb, ffb)
+        v[big] = eb / e2b[:, None] * c[:, None]  # eq. (v2)
+        d = self.d
+        u = p - po
+        uu = _dot(u, u)
+        active = sensed & (0.5 * d * d - 0.5 * uu > 0.0)  # eq. (2), as in_repulsive_zone
+        if active.any():
+            ua, u2, voa, vf = u[active], uu[active], vo[active], v[active]
+            rate = self.task_rates(0.5 * d * d - 0.5 * u2, self.avoidance)
+            coincident = u2 < EPS * EPS
+            with np.errstate(divide="ignore", invalid="ignore"):  # coincident rows: replaced below
+                v_io = ua / u2[:, None] * (rate + _dot(ua, voa))[:, None]  # eq. (v1)
+            push = np.array(COINCIDENT_PUSH_DIRECTION)
+            if coincident.any():
+                v_io[coincident] = push * rate[coincident, None] / d
+                ua = ua.copy()
+                ua[coincident] = push
+                u2 = np.where(coincident, 1.0, u2)
+            s = _dot(ua, vf) / u2
+            v[active] = v_io + vf - ua * s[:, None]  # eq. (v)
+        return v, active
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise ``a . b`` of (n, 3) arrays, summed left to right as :func:`fxswarm.core.control.dot3`."""
+    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
+
+
+#: The law API's batch hook (fxswarm.core.laws): a law class's ``batch`` builds its batch form.
+BehaviouralLaw.batch = BehaviouralBatch
