@@ -67,9 +67,11 @@ def _self_index(n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
 class WorldNode:
     """The world of scenario ``sc``: robots' true state, obstacles, the clock, the record."""
 
-    def __init__(self, scenario: Scenario, record: bool = True, limits: DegradedLimits | None = None) -> None:
+    def __init__(self, scenario: Scenario, record: bool = True, limits: DegradedLimits | None = None,
+                 record_every: int = 1) -> None:
         self.sc = scenario
         n, ticks = scenario.n, scenario.ticks
+        self.record_every = record_every  # trajectory.npz keeps ticks 0, K, 2K, ... (fxswarm sim --record-every)
         self.p = np.array([r.position for r in scenario.robots], dtype=float)
         self.v = np.zeros((n, 3))  # held commands (zero until a robot speaks)
         self.ph = np.array([r.estimate for r in scenario.robots], dtype=float)
@@ -109,7 +111,8 @@ class WorldNode:
         self.link_reports_invalid = 0  # commands whose link reports had the wrong number of links
         self.record = record
         if record:
-            self.rec_t = np.arange(ticks) * scenario.dt
+            self.rec_t = np.arange(0, ticks, record_every) * scenario.dt
+            ticks = len(self.rec_t)
             self.rec_p = np.zeros((ticks, n, 3))
             self.rec_ph = np.zeros((ticks, n, 3))
             self.rec_v = np.zeros((ticks, n, 3))
@@ -311,9 +314,10 @@ class WorldNode:
             np.where(np.isfinite(dist), dist, -1.0), self.avoid.copy(), obstacles.copy(), *self.link_health())
 
     def _record(self) -> None:
-        k = self.tick
-        if not self.record or k >= self.sc.ticks:
+        k, every = self.tick, self.record_every
+        if not self.record or k >= self.sc.ticks or k % every:
             return
+        k //= every
         obstacles, dist, obstacle_dist = self._sensed if self._sensed is not None else self._sense_now()
         self.rec_p[k] = self.p
         self.rec_ph[k] = self.ph
@@ -325,7 +329,7 @@ class WorldNode:
 
     def trajectory(self) -> dict[str, np.ndarray]:
         """The recorded run, as saved to ``trajectory.npz`` (shapes in README)."""
-        ticks = min(self.tick, self.sc.ticks)
+        ticks = -(-min(self.tick, self.sc.ticks) // self.record_every)  # the ticks recorded so far
         t = self.rec_t[:ticks]
         return {
             "t": t,

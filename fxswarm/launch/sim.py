@@ -46,7 +46,8 @@ class Simulation:
     scenario: Scenario
     plan: FaultPlan | None = None
     bus: InMemoryBus = field(default_factory=InMemoryBus)
-    path: str = "auto"  # "auto": the batch path when it takes the run; "batch" / "per-robot": forced
+    path: str = "per-robot"  # "auto": the batch path when it takes the run (fxswarm sim); "batch": it or an error
+    record_every: int = 1  # trajectory.npz keeps every K-th tick
 
     def __post_init__(self) -> None:
         sc = self.scenario
@@ -64,7 +65,7 @@ class Simulation:
                 if self.path == "batch":
                     raise
         if self.batch_law is not None:
-            self.world = WorldNode(sc, limits=self.plan.limits)
+            self.world = WorldNode(sc, limits=self.plan.limits, record_every=self.record_every)
             self.agents = []
             return
         self._build_per_robot()
@@ -72,7 +73,7 @@ class Simulation:
     def _build_per_robot(self) -> None:
         sc = self.scenario
         limits = self.plan.limits
-        self.world = WorldNode(sc, limits=limits)
+        self.world = WorldNode(sc, limits=limits, record_every=self.record_every)
         self.faults = SwarmFaults(sc, self.plan)  # the plan's faults, if any, on each receiver's inbox
         self.leader = self.faults.leader(lambda: LeaderNode(sc))
         self.agents = [self.faults.agent(r.id, lambda i=r.id: AgentNode(sc, i, limits=limits)) for r in sc.robots]

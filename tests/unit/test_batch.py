@@ -1,0 +1,126 @@
+"""The batch path of ``fxswarm sim`` (fxswarm.launch.batch): the same trajectory as the
+per-robot path, bit for bit, on every shipped config it takes and on generated swarms; the
+runs it does not take fall back to the per-robot path and say why."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import glob
+import tomllib
+import warnings
+
+import numpy as np
+import pytest
+
+from fxswarm.core.laws import BatchUnsupported
+from fxswarm.core.scenario import load, parse
+from fxswarm.launch.sim import Simulation
+
+warnings.simplefilter("ignore")  # scenario warnings (K3 below the leader's speed) are not the subject here
+
+
+def both(sc, **kw):
+    """(per-robot summary, batch summary, per-robot trajectory, batch trajectory)."""
+    a, b = Simulation(sc, path="per-robot", **kw), Simulation(sc, path="batch", **kw)
+    sa, sb = a.run(), b.run()
+    assert (sa["path"], sb["path"]) == ("per-robot", "batch")
+    return sa, sb, a.trajectory(), b.trajectory()
+
+
+def assert_same(ta, tb):
+    assert ta.keys() == tb.keys()
+    differ = [k for k in ta if ta[k].shape != tb[k].shape or ta[k].tobytes() != tb[k].tobytes()]
+    assert not differ, f"batch differs from per-robot in {differ}"
+
+
+def shortened(sc, ticks):
+    return dataclasses.replace(sc, duration=sc.dt * ticks)
+
+
+CONFIGS = sorted(glob.glob("configs/*.toml"))
+
+
+@pytest.mark.parametrize("path", CONFIGS)
+def test_every_shipped_config_batch_equals_per_robot_or_falls_back_saying_why(path):
+    sc = load(path)
+    auto = Simulation(sc, path="auto")
+    if auto.batch_law is None:  # only runs with faults fall back among the shipped configs
+        assert "faults" in auto.path_reason and sc.raw.get("faults"), auto.path_reason
+        return
+    sa, sb, ta, tb = both(shortened(sc, 40 if sc.n > 20 else 120))
+    assert_same(ta, tb)
+    assert sa["speed_limited_ticks"] == sb["speed_limited_ticks"]
+    assert sa["formation_error_final_m"] == sb["formation_error_final_m"]
+
+
+LEADER = {"kind": "helix", "centre": [0.0, 0.0, 0.0], "radius": 2.0, "rate": 0.05, "climb": 0.5}
+GAINS = {"b1": 0.6, "b2": 0.6, "r0": 0.9, "r1": 1.2, "r2": 0.6, "lam_f": 1.0, "lam_o": 1.0,
+         "K1": 0.4, "K2": 0.6, "K3": 1.0, "r3": 6.0, "r4": 5.0, "r5": 3.0, "r6": 5.0}
+
+
+def generated(swarm: dict, ticks=60, dt=0.02, **top) -> dict:
+    raw = {"scenario": {"name": "gen", "duration": ticks * dt, "dt": dt, "d": 1.5, "seed": 3},
+           "gains": dict(GAINS), "leader": dict(LEADER), "swarm": swarm,
+           "formation": {"amplitude": [0.1, 0.0, 0.05], "omega": [0.2, 0.0, 0.3]}}
+    for key, value in top.items():
+        raw.setdefault(key, {}).update(value) if isinstance(value, dict) else raw.__setitem__(key, value)
+    return raw
+
+
+SWARMS = [
+    {"count": 30, "formation": "grid", "spacing": 1.2, "graph": "k-nearest", "k": 3, "pinned": 0.1, "box": 3.0},
+    {"count": 25, "formation": "circle", "spacing": 1.0, "graph": "ring", "pinned": [1, 13], "box": 2.0},
+    {"count": 40, "formation": "sphere", "spacing": 1.0, "graph": "random-geometric", "radius": 2.5,
+     "pinned": 0.05, "box": 4.0, "seed": 11},
+    {"count": 20, "formation": "line", "spacing": 1.0, "graph": "tree", "branching": 3, "box": 1.0},
+    {"count": 16, "formation": "grid", "spacing": 1.0, "graph": "grid", "pinned": [6], "start": "slots",
+     "weights": 0.7, "pin_gain": 2.0},
+    {"count": 12, "formation": "grid", "spacing": 1.0, "graph": "complete", "box": 6.0},
+]
+
+
+@pytest.mark.parametrize("swarm", SWARMS, ids=lambda s: f"{s['formation']}-{s['graph']}")
+def test_generated_swarms_batch_equals_per_robot_with_avoidance_and_the_speed_limit(swarm):
+    # spacing below d and a speed limit: robots avoid each other and are limited, so both branches run
+    sc = parse(generated(swarm, scenario={"v_max": 1.5},
+                         obstacles=[{"kind": "static", "position": [2.0, 0.0, 0.3]},
+                                    {"kind": "circle", "centre": [0.0, 0.0, 0.5], "radius": 1.5, "rate": 0.4}]),
+               "gen.toml")
+    sa, sb, ta, tb = both(sc)
+    assert_same(ta, tb)
+    assert ta["avoid_active"].any(), "the run never entered a repulsive zone: the test would not see that branch"
+    assert sa["speed_limited_ticks"] == sb["speed_limited_ticks"] > 0
+
+
+@pytest.mark.parametrize("law,power", [("asymptotic", "pairwise"), ("finite-time", "aggregate"),
+                                       ("fixed-time", "aggregate")])
+def test_other_built_in_families_and_the_aggregate_power_batch_equals_per_robot(law, power):
+    sc = parse(generated(SWARMS[0], ticks=80, controller={"law": law}, estimator={"power": power}), "gen.toml")
+    _, _, ta, tb = both(sc)
+    assert_same(ta, tb)
+
+
+@pytest.mark.parametrize("change,why", [
+    ({"faults": {"links": [{"link": "agent:*->agent:*", "kinds": ["estimate"], "drop": 0.2}]}}, "faults"),
+    ({"controller": {"discretisation": "semi-implicit"}}, "discretisation"),
+    ({"controller": {"law": "fixed-time+feedforward"}}, "tracking"),
+])
+def test_what_the_batch_path_does_not_take_runs_per_robot_and_says_why(change, why):
+    sc = parse(generated(SWARMS[3], ticks=5, **change), "gen.toml")
+    auto = Simulation(sc, path="auto")
+    assert auto.batch_law is None and why in auto.path_reason
+    summary = auto.run()
+    assert summary["path"] == "per-robot" and why in summary["path_reason"]
+    with pytest.raises(BatchUnsupported, match=why):
+        Simulation(sc, path="batch")
+
+
+def test_record_every_keeps_every_kth_tick_of_the_full_record():
+    sc = parse(generated(SWARMS[1], ticks=23), "gen.toml")
+    full, every = Simulation(sc, path="batch"), Simulation(sc, path="batch", record_every=5)
+    full.run(), every.run()
+    a, b = full.trajectory(), every.trajectory()
+    assert len(b["t"]) == 5  # ticks 0, 5, 10, 15, 20
+    for key in a:
+        assert np.array_equal(a[key][::5], b[key]), key
