@@ -29,9 +29,14 @@ import numpy as np
 from fxswarm.core import bus as topics
 from fxswarm.core.messages import Clock, Command, Message, Sense, WorldState
 from fxswarm.core.motion import Static
+from fxswarm.core.nearest import nearest_objects_tree
 from fxswarm.core.pacing import Deadline, Pacer, WallClock
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.plan import DegradedLimits, degraded_limits
+
+
+#: Above this many robots the nearest object comes from a KD-tree, not an n x (n + m) matrix.
+DENSE_NEAREST_MAX = 400
 
 
 def nearest_objects(p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, obstacle_v: np.ndarray):
@@ -43,6 +48,8 @@ def nearest_objects(p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, obstacl
     (inf without obstacles). With one robot and no obstacle, ``dist`` is inf.
     """
     n = len(p)
+    if n > DENSE_NEAREST_MAX:  # no n x n matrix (fxswarm.core.nearest): the same answer from a KD-tree
+        return nearest_objects_tree(p, v, obstacles, obstacle_v)
     objects = np.concatenate([obstacles, p])
     object_v = np.concatenate([obstacle_v, v])
     diff = p[:, None, :] - objects[None, :, :]
