@@ -80,6 +80,8 @@ class WorldNode:
         n, ticks = scenario.n, scenario.ticks
         self.record_every = record_every  # trajectory.npz keeps ticks 0, K, 2K, ... (fxswarm sim --record-every)
         self.p = np.array([r.position for r in scenario.robots], dtype=float)
+        if n > DENSE_NEAREST_MAX:
+            import scipy.spatial  # noqa: F401 (imported now, not inside the first tick: nearest_objects_tree)
         self.v = np.zeros((n, 3))  # held commands (zero until a robot speaks)
         self.ph = np.array([r.estimate for r in scenario.robots], dtype=float)
         self.avoid = np.zeros(n, dtype=bool)
