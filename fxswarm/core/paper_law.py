@@ -197,6 +197,21 @@ class BehaviouralBatch:
         self.pairwise = sc.estimator.power != "aggregate"
         # per slot: the robots that have a row there (all of them for the first slots, typically)
         self._rows = [None if valid[:, s].all() else np.flatnonzero(valid[:, s]) for s in range(slots.shape[1])]
+        # Pairwise powers once per link: robot i's |ph_i - ph_j| is robot j's |ph_j - ph_i|, the
+        # same float (IEEE subtraction is antisymmetric), so its powers are the same too. Table of
+        # |differences|: the undirected links (i < j), then each pinned robot's to the leader.
+        n = len(slots)
+        i_idx, s_idx = np.nonzero(valid)
+        j_idx = slots[i_idx, s_idx]
+        robot = j_idx < n
+        lo, hi = np.minimum(i_idx, j_idx)[robot], np.maximum(i_idx, j_idx)[robot]
+        links, inverse = np.unique(lo * n + hi, return_inverse=True)
+        self._link_i, self._link_j = links // n, links % n
+        self._pinned = i_idx[~robot]
+        table = np.zeros(slots.shape, dtype=np.intp)
+        table[i_idx[robot], s_idx[robot]] = inverse
+        table[i_idx[~robot], s_idx[~robot]] = len(links) + np.arange(len(self._pinned))
+        self._table = table
 
     def estimate_rates(self, ph: np.ndarray, p0: np.ndarray) -> np.ndarray:
         """``dph/dt`` of every robot, (n, 3): eq. (11), as :func:`fxswarm.core.control.estimator_rate`."""
@@ -205,23 +220,30 @@ class BehaviouralBatch:
         n = len(ph)
         src = np.concatenate([ph, p0.reshape(1, 3)])
         P, Q, E = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+        if self.pairwise:  # |d| ** a of every link and leader row, each computed once
+            ad = np.abs(np.concatenate([ph[self._link_i] - ph[self._link_j], ph[self._pinned] - p0]))
+            nz = ad != 0.0
+            pow1, pow2 = np.zeros_like(ad), np.zeros_like(ad)
+            pow1[nz] = powers(ad[nz], a1)
+            pow2[nz] = powers(ad[nz], a2)
         for s, rows in enumerate(self._rows):
             if rows is None:
-                X, Y, W = ph, src[self.slots[:, s]], self.weights[:, s, None]
+                X, Y, W, at = ph, src[self.slots[:, s]], self.weights[:, s, None], self._table[:, s]
             else:
-                X, Y, W = ph[rows], src[self.slots[rows, s]], self.weights[rows, s, None]
+                X, Y, W, at = ph[rows], src[self.slots[rows, s]], self.weights[rows, s, None], self._table[rows, s]
             D = X - Y
             if rows is None:
                 E = E + W * D
             else:
                 E[rows] = E[rows] + W * D
             if self.pairwise:  # w * sig(d, a) where d != 0, added in the same order
-                r, ax = np.nonzero(D != 0.0)
-                d = D[r, ax]
-                ad, w = np.abs(d), W[r, 0]
-                at = (r, ax) if rows is None else (rows[r], ax)
-                P[at] = P[at] + np.copysign(w * powers(ad, a1), d)
-                Q[at] = Q[at] + np.copysign(w * powers(ad, a2), d)
+                nz = D != 0.0
+                if rows is None:
+                    P = np.where(nz, P + np.copysign(W * pow1[at], D), P)
+                    Q = np.where(nz, Q + np.copysign(W * pow2[at], D), Q)
+                else:
+                    P[rows] = np.where(nz, P[rows] + np.copysign(W * pow1[at], D), P[rows])
+                    Q[rows] = np.where(nz, Q[rows] + np.copysign(W * pow2[at], D), Q[rows])
         if not self.pairwise:
             nz = E != 0.0
             e = E[nz]
