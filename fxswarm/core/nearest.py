@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 #: Robots' candidates per query: the nearest other robot, and slack for ties and rounding.
-CANDIDATES = 8
+CANDIDATES = 4
 #: cKDTree's distances and the world's may differ in the last bits: a candidate set is
 #: trusted only if its farthest is farther than the best by more than this (relative).
 ROUNDING = 1e-9
@@ -33,26 +33,37 @@ def nearest_objects_tree(p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, ob
     from scipy.spatial import cKDTree  # only for large swarms: small ones never import scipy
 
     n, m = len(p), len(obstacles)
-    k = CANDIDATES + 1  # the robot itself is among its own nearest
-    _, idx = cKDTree(p).query(p, k=k)
-    own = np.arange(n)
-    # candidate objects: every obstacle, then the robots the tree proposes (object index m + id - 1)
-    cand = np.concatenate([np.broadcast_to(np.arange(m), (n, m)), m + idx], axis=1)
     objects = np.concatenate([obstacles, p])
     object_v = np.concatenate([obstacle_v, v])
-    dist = distances(p, objects[cand])
-    dist[cand == m + own[:, None]] = np.inf  # a robot is not its own nearest object
-    obstacle_dist = dist[:, :m].min(axis=1) if m else np.full(n, np.inf)
-    best = dist.min(axis=1)
-    robot_far = dist[:, m:]
-    # trusted: the farthest proposed robot is clearly farther than the best, so no robot outside
-    # the proposals can be as near (the tree's own distance to them is at least that far)
-    finite = np.where(np.isfinite(robot_far), robot_far, -np.inf)
-    trusted = finite.max(axis=1) > best * (1.0 + ROUNDING) + 1e-300
-    # the first object (lowest index) among the nearest: the world's argmin over [obstacles, robots]
-    key = np.where(dist == best[:, None], cand, np.iinfo(np.intp).max)
-    choice = key.min(axis=1)
-    for i in np.flatnonzero(~trusted):  # rare: decide over every object, as the world does
+    own = np.arange(n)
+    if m:
+        obstacle_all = distances(p, np.broadcast_to(obstacles, (n, m, 3)))
+        obstacle_dist = obstacle_all.min(axis=1)
+    else:
+        obstacle_all, obstacle_dist = np.zeros((n, 0)), np.full(n, np.inf)
+    tree = cKDTree(p)
+    choice, best = np.zeros(n, dtype=np.intp), np.zeros(n)
+    rows = own
+    for k in (CANDIDATES + 1, 4 * CANDIDATES + 1):  # the robot itself is among its own nearest
+        k = min(k, n)
+        _, idx = tree.query(p[rows], k=k)
+        cand = np.concatenate([np.broadcast_to(np.arange(m), (len(rows), m)), m + idx], axis=1)
+        dist = np.concatenate([obstacle_all[rows], distances(p[rows], p[idx])], axis=1)
+        dist[cand == m + rows[:, None]] = np.inf  # a robot is not its own nearest object
+        row_best = dist.min(axis=1)
+        # trusted: the farthest proposed robot is clearly farther than the best, so no robot
+        # outside the proposals can be as near (the tree's distance to them is at least that far)
+        trusted = dist[:, m:].max(axis=1, initial=-np.inf, where=np.isfinite(dist[:, m:])) \
+            > row_best * (1.0 + ROUNDING) + 1e-300
+        if k == n:
+            trusted[:] = True  # every robot was proposed
+        # the first object (lowest index) among the nearest: the world's argmin over [obstacles, robots]
+        key = np.where(dist == row_best[:, None], cand, np.iinfo(np.intp).max)
+        choice[rows], best[rows] = key.min(axis=1), row_best
+        rows = rows[~trusted]
+        if not len(rows):
+            break
+    for i in rows:  # rare (many robots equally near): decide over every object, as the world does
         row = distances(p[i:i + 1], objects[None, :, :])[0]
         row[m + i] = np.inf
         choice[i] = int(row.argmin())
