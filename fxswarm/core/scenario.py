@@ -76,6 +76,7 @@ class Scenario:
     law: str = "fixed-time"  # [controller] law: a built-in name (fxswarm.core.laws) or module:Class
     law_params: dict = field(repr=False, default_factory=dict)  # [controller.params], handed to the law
     law_folder: str | None = None  # the scenario's folder: where a law module beside it is imported from
+    swarm: dict | None = field(repr=False, default=None)  # the [swarm] table as written (raw holds its expansion)
 
     @property
     def n(self) -> int:
@@ -478,6 +479,7 @@ def parse(data: dict, source: str = "<scenario>", folder: str | None = None, *, 
     """Validate a parsed TOML document into a :class:`Scenario`. ``folder``: where a law module
     named ``module:Class`` is looked for first (default: the folder of ``source``, if a file);
     ``check_law=False``: the law is not imported (for an observer, which flies nothing)."""
+    swarm = data.get("swarm") if isinstance(data.get("swarm"), dict) else None
     data = expand_swarm(data, source, folder if folder is not None else _folder_of(source))  # [swarm] -> robots
     top = _Fields(source, data)
     top.check_known({"scenario", "gains", "estimator", "graph", "leader", "formation", "robots",
@@ -607,6 +609,7 @@ def parse(data: dict, source: str = "<scenario>", folder: str | None = None, *, 
         law=cf.string("law") if cf.has("law") else builtin_name(variant, tracking),
         law_params=dict(cf.table_at("params").table),
         law_folder=folder if folder is not None else _folder_of(source),
+        swarm=swarm,
     )
     if check_law:
         _law(scenario, cf)

@@ -131,3 +131,23 @@ def test_fxswarm_expand_prints_the_explicit_form_and_exits_2_on_bad_input(tmp_pa
     bad.write_text(BASE + '[swarm]\ncount = 12\ngraph = "star-of-david"\n')
     out = subprocess.run([sys.executable, "-m", "fxswarm.cli", "expand", str(bad)], capture_output=True, text=True)
     assert out.returncode == 2 and f"{bad}: swarm.graph: expected one of" in out.stderr and not out.stdout
+
+
+def test_a_campaign_grid_over_swarm_count_and_graph_parameters(tmp_path):
+    from fxswarm.study.campaign_plan import CampaignError, Criteria, make_plan, parse_axis
+
+    config = tmp_path / "gen.toml"
+    config.write_text(BASE + '[swarm]\ncount = 10\nformation = "grid"\ngraph = "k-nearest"\nk = 3\nbox = 1.0\n')
+    axes = [parse_axis("swarm.count=10,40"), parse_axis("swarm.k=3,5")]
+    plan = make_plan(str(config), load(config), tmp_path / "c", [], axes, [None], 1, 1, Criteria(1.0, None, 0.2))
+    cells = sorted((r.cell["swarm.count"], r.cell["swarm.k"]) for r in plan.runs)
+    assert cells == [(10, 3), (10, 5), (40, 3), (40, 5)]
+    for run in plan.runs:  # each run's scenario is a [swarm] table, expanded when it is parsed
+        table = plan.tables[run.scenario]
+        assert "robots" not in table and table["swarm"]["count"] == run.cell["swarm.count"]
+        sc = parse(table, run.scenario)
+        assert sc.n == run.cell["swarm.count"] and (sc.a > 0).sum(axis=1).min() >= run.cell["swarm.k"]
+    listed = tmp_path / "listed.toml"
+    listed.write_text(open("configs/paper-fast.toml").read())
+    with pytest.raises(CampaignError, match="no \\[swarm\\] table"):
+        make_plan(str(listed), load(listed), tmp_path / "d", [], axes[:1], [None], 1, 1, Criteria(1.0, None, 0.2))
