@@ -29,7 +29,7 @@ import numpy as np
 from fxswarm.core import bus as topics
 from fxswarm.core.messages import Clock, Command, Message, Sense, WorldState
 from fxswarm.core.motion import Static
-from fxswarm.core.nearest import nearest_objects_tree
+from fxswarm.core.nearest import have_tree, nearest_objects_blocked, nearest_objects_tree
 from fxswarm.core.pacing import Deadline, Pacer, WallClock
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.plan import DegradedLimits, degraded_limits
@@ -49,7 +49,9 @@ def nearest_objects(p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, obstacl
     """
     n = len(p)
     if n > DENSE_NEAREST_MAX:  # no n x n matrix (fxswarm.core.nearest): the same answer from a KD-tree
-        return nearest_objects_tree(p, v, obstacles, obstacle_v)
+        if have_tree():
+            return nearest_objects_tree(p, v, obstacles, obstacle_v)
+        return nearest_objects_blocked(p, v, obstacles, obstacle_v)  # without scipy: in blocks of rows
     objects = np.concatenate([obstacles, p])
     object_v = np.concatenate([obstacle_v, v])
     diff = p[:, None, :] - objects[None, :, :]
@@ -81,7 +83,7 @@ class WorldNode:
         self.record_every = record_every  # trajectory.npz keeps ticks 0, K, 2K, ... (fxswarm sim --record-every)
         self.p = np.array([r.position for r in scenario.robots], dtype=float)
         if n > DENSE_NEAREST_MAX:
-            import scipy.spatial  # noqa: F401 (imported now, not inside the first tick: nearest_objects_tree)
+            have_tree()  # scipy imported now, if installed, not inside the first tick
         self.v = np.zeros((n, 3))  # held commands (zero until a robot speaks)
         self.ph = np.array([r.estimate for r in scenario.robots], dtype=float)
         self.avoid = np.zeros(n, dtype=bool)

@@ -66,17 +66,19 @@ DENSE_EIGEN_MAX = 400
 
 
 def extreme_eigenvalues(H) -> tuple[float, float]:
-    """``(lambda_min, lambda_max)`` of the symmetric ``H``: dense for up to
-    :data:`DENSE_EIGEN_MAX` rows, else by ARPACK on a sparse copy (shift-invert at 0 for the
-    smallest; a fixed start vector, so the same figures every run)."""
+    """``(lambda_min, lambda_max)`` of the symmetric ``H``: a dense ``H`` by eigvalsh (NaN above
+    3000 rows: hours), a sparse one (:func:`h_of` above :data:`DENSE_EIGEN_MAX` robots, with
+    scipy) by ARPACK (shift-invert at 0 for the smallest; a fixed start vector, so the same
+    figures every run)."""
     n = H.shape[0]
-    if n <= DENSE_EIGEN_MAX:
+    if not hasattr(H, "tocsc"):
+        if n > 3000:
+            return math.nan, math.nan
         eig = np.linalg.eigvalsh(H)
         return float(eig[0]), float(eig[-1])
-    from scipy.sparse import csc_matrix
     from scipy.sparse.linalg import eigsh
 
-    S = H if hasattr(H, "tocsc") else csc_matrix(H)
+    S = H
     v0 = np.ones(n)
     lmax = eigsh(S, k=1, which="LA", v0=v0, return_eigenvectors=False)[0]
     lmin = eigsh(S, k=1, sigma=0.0, which="LM", v0=v0, return_eigenvectors=False)[0]
@@ -88,7 +90,10 @@ def h_of(a: np.ndarray, b: np.ndarray):
     :data:`DENSE_EIGEN_MAX` robots, sparse above (three dense n x n copies are 2.4 GB at 10 000)."""
     if len(b) <= DENSE_EIGEN_MAX:
         return np.diag(a.sum(axis=1)) - a + np.diag(b)
-    from scipy.sparse import csr_matrix, diags
+    try:
+        from scipy.sparse import csr_matrix, diags
+    except ImportError:  # without the scale extra: dense (slow at thousands of robots)
+        return np.diag(a.sum(axis=1)) - a + np.diag(b)
 
     A = csr_matrix(a)
     return (diags(np.asarray(A.sum(axis=1)).ravel() + b) - A).tocsc()

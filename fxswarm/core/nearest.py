@@ -28,6 +28,35 @@ def distances(p: np.ndarray, objects: np.ndarray) -> np.ndarray:
     return np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
 
 
+def have_tree() -> bool:
+    """Whether scipy (the ``scale`` extra) is installed."""
+    try:
+        import scipy.spatial  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def nearest_objects_blocked(p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, obstacle_v: np.ndarray,
+                            block: int = 256):
+    """As ``world.node.nearest_objects``, the same computation a block of robots at a time: the
+    same answer with ``block`` x (n + m) distances in memory, not n x (n + m) (without scipy)."""
+    n, m = len(p), len(obstacles)
+    objects = np.concatenate([obstacles, p])
+    object_v = np.concatenate([obstacle_v, v])
+    choice, best, obstacle_dist = np.zeros(n, dtype=np.intp), np.zeros(n), np.full(n, np.inf)
+    for start in range(0, n, block):
+        rows = np.arange(start, min(n, start + block))
+        diff = p[rows, None, :] - objects[None, :, :]
+        dist = np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
+        dist[rows - start, m + rows] = np.inf
+        if m:
+            obstacle_dist[rows] = dist[:, :m].min(axis=1)
+        k = dist.argmin(axis=1)
+        choice[rows], best[rows] = k, dist[rows - start, k]
+    return objects[choice], object_v[choice], best, choice < m, obstacle_dist
+
+
 def nearest_objects_tree(p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, obstacle_v: np.ndarray):
     """As ``world.node.nearest_objects`` (same returns, same values) for n > CANDIDATES robots."""
     from scipy.spatial import cKDTree  # only for large swarms: small ones never import scipy

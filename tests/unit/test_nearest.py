@@ -45,3 +45,21 @@ def test_the_world_uses_the_tree_above_the_dense_limit(monkeypatch):
     p = lattice(world_node.DENSE_NEAREST_MAX + 1)
     world_node.nearest_objects(p, np.zeros_like(p), np.zeros((0, 3)), np.zeros((0, 3)))
     assert calls
+
+
+def test_without_scipy_the_world_computes_the_same_in_blocks_of_rows(monkeypatch):
+    from fxswarm.core import nearest
+
+    rng = np.random.default_rng(9)
+    p = lattice(600)
+    p[:50] += rng.uniform(-0.5, 0.5, (50, 3))
+    v, obstacles, obstacle_v = rng.normal(size=(600, 3)), rng.uniform(-20, 20, (2, 3)), rng.normal(size=(2, 3))
+    want = dense(p, v, obstacles, obstacle_v, monkeypatch)
+    got = nearest.nearest_objects_blocked(p, v, obstacles, obstacle_v, block=97)
+    for a, b in zip(want, got):
+        assert a.tobytes() == b.tobytes()
+    monkeypatch.setattr(world_node, "DENSE_NEAREST_MAX", 400)
+    monkeypatch.setattr(world_node, "have_tree", lambda: False)
+    monkeypatch.setattr(world_node, "nearest_objects_tree", None)  # would fail if called
+    for a, b in zip(want, world_node.nearest_objects(p, v, obstacles, obstacle_v)):
+        assert a.tobytes() == b.tobytes()
