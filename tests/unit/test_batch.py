@@ -124,3 +124,19 @@ def test_record_every_keeps_every_kth_tick_of_the_full_record():
     assert len(b["t"]) == 5  # ticks 0, 5, 10, 15, 20
     for key in a:
         assert np.array_equal(a[key][::5], b[key]), key
+
+
+def test_the_guards_robot_on_its_slot_and_robot_on_an_obstacle_batch_equals_per_robot():
+    # Robots start exactly on their slots with exact estimates (|e| = 0: the formation guard), and an
+    # obstacle sits exactly on robot 5 (|u| = 0: the coincident-push guard of SPEC section 4).
+    raw = generated({"count": 9, "formation": "grid", "spacing": 2.0, "graph": "grid", "start": "slots"}, ticks=30)
+    raw["leader"] = {"kind": "static", "position": [0.0, 0.0, 0.0]}
+    raw["formation"] = {}
+    raw["obstacles"] = [{"kind": "static", "position": [0.0, 0.0, 0.0]}]  # robot 5's slot: the grid's centre
+    sc = parse(raw, "gen.toml")
+    assert sc.robots[4].position == (0.0, 0.0, 0.0)
+    _, _, ta, tb = both(sc)
+    assert_same(ta, tb)
+    assert ta["avoid_active"][0, 4] and ta["nearest_distance"][0, 4] == 0.0
+    assert ta["v"][0, 0].tolist() == [0.0, 0.0, 0.0]  # robot 1 on its slot, a still leader: it holds
+    assert ta["v"][0, 4, 2] > 0.0  # robot 5 pushed straight up
