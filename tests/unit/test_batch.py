@@ -140,3 +140,14 @@ def test_the_guards_robot_on_its_slot_and_robot_on_an_obstacle_batch_equals_per_
     assert ta["avoid_active"][0, 4] and ta["nearest_distance"][0, 4] == 0.0
     assert ta["v"][0, 0].tolist() == [0.0, 0.0, 0.0]  # robot 1 on its slot, a still leader: it holds
     assert ta["v"][0, 4, 2] > 0.0  # robot 5 pushed straight up
+
+
+def test_above_the_dense_limit_the_kd_tree_world_gives_both_paths_the_same_run():
+    from fxswarm.world.node import DENSE_NEAREST_MAX
+
+    n = DENSE_NEAREST_MAX + 50  # the world's nearest object from the KD-tree (fxswarm.core.nearest)
+    sc = parse(generated({"count": n, "formation": "grid", "spacing": 1.0, "graph": "k-nearest", "k": 3,
+                          "pinned": 0.05, "box": 1.0}, ticks=3), "gen.toml")
+    _, _, ta, tb = both(sc)
+    assert_same(ta, tb)
+    assert ta["avoid_active"].any()

@@ -6,7 +6,7 @@ import numpy as np
 from fxswarm.report import figures
 
 
-def swarm_trajectory(n: int, ticks: int = 40) -> dict:
+def swarm_trajectory(n: int, ticks: int = 12) -> dict:
     rng = np.random.default_rng(1)
     t = np.arange(ticks) * 0.1
     p0 = np.stack([t, 0 * t, 0.5 * t], axis=1)
