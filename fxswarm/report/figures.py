@@ -108,10 +108,11 @@ def trajectories_3d(traj: dict, out: Path, d: float, law: str | None = None) -> 
     fig = plt.figure(figsize=(7.5, 7))
     ax = fig.add_subplot(projection="3d")
     n = p.shape[1]
-    if n > MANY_ROBOTS:  # thin paths, one legend entry, starts and ends in one call each
-        for i in range(n):
+    if n > MANY_ROBOTS:  # thin paths of up to 200 robots, one legend entry; every start and end
+        step = -(-n // 200)
+        for i in range(0, n, step):
             ax.plot(p[:, i, 0], p[:, i, 1], p[:, i, 2], color=robot_hex(i), lw=0.4, alpha=0.5,
-                    label=f"{n} robots" if i == 0 else None)
+                    label=(f"{n} robots" if step == 1 else f"every {step}th robot of {n}") if i == 0 else None)
         ax.scatter(*p[0].T, color="0.4", marker="o", s=4, label="start")
         ax.scatter(*p[-1].T, color="k", marker="^", s=6, label="end")
     for i in range(n if n <= MANY_ROBOTS else 0):
