@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from fxswarm.core.laws import BatchUnsupported, limit_speed, resolve_law  # noqa: F401 (limit_speed: the node's)
+from fxswarm.core.laws import BatchUnsupported, resolve_law
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.plan import FaultPlan
 from fxswarm.world.node import WorldNode
