@@ -8,7 +8,7 @@ A scenario may describe its robots instead of listing them (docs/guide.md "Gener
     spacing = 2.0           # m between neighbouring slots
     graph = "k-nearest"     # line | ring | grid | k-nearest | random-geometric | tree | complete
     k = 4                   # k-nearest: neighbours per robot; random-geometric: radius = ...; tree: branching = ...
-    pinned = 0.05           # share of robots that hear the leader, or a list of ids
+    pinned = 0.05           # share of robots that hear the leader (spread over the formation), or ids
     start = "box"           # random start in a cube of side `box` around each slot ("slots": on the slot)
     box = 20.0
     seed = 7
@@ -79,7 +79,7 @@ def expand(data: dict, source: str, folder: str | None = None) -> dict:
         f.fail("graph", f"a graph that scales to {count} robots ('complete' is limited to {COMPLETE_MAX}: "
                f"its edges grow as count^2)", graph)
     edges = graph_edges(graph, offsets, spacing, k=k, radius=radius, branching=branching)
-    pinned = _pinned(f, count)
+    pinned = _pinned(f, count, offsets)
     lost = unreachable(count, edges, pinned)
     if lost:
         shown = ", ".join(str(x) for x in lost[:20]) + (f" and {len(lost) - 20} more" if len(lost) > 20 else "")
@@ -153,8 +153,9 @@ def _offsets_file(f, folder: str | None) -> list[tuple[float, float, float]]:
     return out
 
 
-def _pinned(f, count: int) -> list[int]:
-    """The pinned robots: a share (0, 1] of them spread evenly over the ids (robot 1 first), or a list."""
+def _pinned(f, count: int, offsets) -> list[int]:
+    """The pinned robots: a list of ids, or a share (0, 1] of them spread over the formation
+    (:func:`spread`), so that no robot is many hops from one that hears the leader."""
     value = f.table.get("pinned", [1])
     if isinstance(value, list):
         if not value or not all(isinstance(x, int) and not isinstance(x, bool) and 1 <= x <= count for x in value):
@@ -162,8 +163,23 @@ def _pinned(f, count: int) -> list[int]:
         return sorted(set(value))
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < value <= 1.0:
         f.fail("pinned", f"a share in (0, 1] or a non-empty list of robot ids in 1..{count}", value)
-    m = max(1, round(value * count))
-    return [i * count // m + 1 for i in range(m)]
+    return spread(offsets, max(1, round(value * count)))
+
+
+def spread(offsets, m: int) -> list[int]:
+    """``m`` robot ids (ascending) spread over the slots by farthest-point sampling: robot 1, then
+    each time the robot whose slot is farthest from those already chosen (ties: the lower id).
+    Squared distances in correctly rounded arithmetic: the same choice on every machine."""
+    pts = np.asarray(offsets, dtype=float)
+    chosen = [0]
+    d = pts - pts[0]
+    gap = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]  # to the nearest chosen slot
+    for _ in range(m - 1):
+        k = int(np.argmax(gap))  # the first (lowest id) of the farthest
+        chosen.append(k)
+        d = pts - pts[k]
+        gap = np.minimum(gap, d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
+    return sorted(i + 1 for i in chosen)
 
 
 def formation_offsets(shape: str, count: int, spacing: float) -> list[tuple[float, float, float]]:

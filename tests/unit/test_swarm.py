@@ -52,7 +52,10 @@ def test_a_swarm_expands_to_robots_graph_and_pins_the_same_way_every_time():
     a, b = scenario(table), scenario(table)
     assert a.n == 50 and np.array_equal(a.a, b.a) and np.array_equal(a.b, b.b)
     assert [r.position for r in a.robots] == [r.position for r in b.robots]
-    assert [int(i) + 1 for i in np.flatnonzero(a.b)] == [1, 11, 21, 31, 41]  # 5 spread over the ids
+    # 5 pinned, spread over the formation by farthest-point sampling: robot 1, then the far corners
+    assert [int(i) + 1 for i in np.flatnonzero(a.b)] == [1, 7, 20, 48, 50]
+    from fxswarm.core.graph import hops_to_leader
+    assert hops_to_leader(a.a, a.b).max() <= 3  # (the first 5 ids, one row of the grid, leave robots 5 hops away)
     offsets = np.array([r.offset.base for r in a.robots])
     start = np.array([r.position for r in a.robots]) - offsets - [1.0, 2.0, 3.0]  # around leader + slot
     assert np.abs(start).max() <= 2.5 and np.abs(start).max() > 1.0
