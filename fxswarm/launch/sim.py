@@ -109,8 +109,17 @@ class Simulation:
         runner = {"counters": {"bus": self.bus.counters.as_dict(), "missed_ticks": self.world.missed_ticks},
                   "speed_limited_ticks": sum(a.speed_limited for a in self.agents),
                   "path": "per-robot", "path_reason": self.path_reason}
-        return build_summary(self.scenario, self.world.trajectory(), self.plan, wall_s=wall, world=self.world,
-                             links=self.faults.link_counts(), restarts=self.faults.restarts(), runner=runner)
+        return self._ticks_run(build_summary(self.scenario, self.world.trajectory(), self.plan, wall_s=wall,
+                                             world=self.world, links=self.faults.link_counts(),
+                                             restarts=self.faults.restarts(), runner=runner))
+
+    def _ticks_run(self, summary: dict) -> dict:
+        """With ``--record-every K`` the trajectory holds every K-th tick: the summary counts the ticks run."""
+        if self.record_every > 1:
+            summary["ticks"] = int(self.world.tick)
+            summary["duration_s"] = float(self.world.tick * self.scenario.dt)
+            summary["record_every"] = self.record_every
+        return summary
 
     def _run_batch(self, progress) -> dict:
         """The batch path (fxswarm.launch.batch): the same world, every robot's law in one call a tick."""
@@ -118,8 +127,8 @@ class Simulation:
         wall = stepper.run(progress)
         runner = {"counters": {"bus": {}, "missed_ticks": self.world.missed_ticks},
                   "speed_limited_ticks": stepper.speed_limited, "path": "batch", "path_reason": None}
-        return build_summary(self.scenario, self.world.trajectory(), self.plan, wall_s=wall, world=self.world,
-                             links={}, restarts={}, runner=runner)
+        return self._ticks_run(build_summary(self.scenario, self.world.trajectory(), self.plan, wall_s=wall,
+                                             world=self.world, links={}, restarts={}, runner=runner))
 
     def trajectory(self) -> dict[str, np.ndarray]:
         return self.world.trajectory()

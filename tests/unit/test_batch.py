@@ -118,10 +118,11 @@ def test_what_the_batch_path_does_not_take_runs_per_robot_and_says_why(change, w
 
 def test_record_every_keeps_every_kth_tick_of_the_full_record():
     sc = parse(generated(SWARMS[1], ticks=23), "gen.toml")
-    full, every = Simulation(sc, path="batch"), Simulation(sc, path="batch", record_every=5)
-    full.run(), every.run()
+    full, every = Simulation(sc, path="batch"), Simulation(sc, path="per-robot", record_every=5)
+    sa, sb = full.run(), every.run()
     a, b = full.trajectory(), every.trajectory()
     assert len(b["t"]) == 5  # ticks 0, 5, 10, 15, 20
+    assert (sb["ticks"], sb["duration_s"], sb["record_every"]) == (23, sa["duration_s"], 5) and sa["ticks"] == 23
     for key in a:
         assert np.array_equal(a[key][::5], b[key]), key
 
