@@ -29,7 +29,7 @@ import numpy as np
 from fxswarm.core import bus as topics
 from fxswarm.core.messages import Clock, Command, Message, Sense, WorldState
 from fxswarm.core.motion import Static
-from fxswarm.core.nearest import have_tree, nearest_objects_blocked, nearest_objects_tree
+from fxswarm.core.nearest import NearestCache, have_tree, nearest_objects_blocked, nearest_objects_tree
 from fxswarm.core.pacing import Deadline, Pacer, WallClock
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.plan import DegradedLimits, degraded_limits
@@ -82,8 +82,8 @@ class WorldNode:
         n, ticks = scenario.n, scenario.ticks
         self.record_every = record_every  # trajectory.npz keeps ticks 0, K, 2K, ... (fxswarm sim --record-every)
         self.p = np.array([r.position for r in scenario.robots], dtype=float)
-        if n > DENSE_NEAREST_MAX:
-            have_tree()  # scipy imported now, if installed, not inside the first tick
+        # Above the dense limit with scipy: KD-tree candidate lists kept across ticks (fxswarm.core.nearest)
+        self._nearest = NearestCache() if n > DENSE_NEAREST_MAX and have_tree() else nearest_objects
         self.v = np.zeros((n, 3))  # held commands (zero until a robot speaks)
         self.ph = np.array([r.estimate for r in scenario.robots], dtype=float)
         self.avoid = np.zeros(n, dtype=bool)
@@ -292,7 +292,7 @@ class WorldNode:
     def _sense_now(self):
         t = self.t
         obstacles, obstacle_v = self._fixed_obstacles or self.obstacle_state(t)
-        po, vo, dist, _, obstacle_dist = nearest_objects(self.p, self.v, obstacles, obstacle_v)
+        po, vo, dist, _, obstacle_dist = self._nearest(self.p, self.v, obstacles, obstacle_v)
         self._sensed = (obstacles, dist, obstacle_dist)
         return po, vo, dist
 

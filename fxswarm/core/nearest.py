@@ -98,3 +98,70 @@ def nearest_objects_tree(p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, ob
         choice[i] = int(row.argmin())
         best[i] = row[choice[i]]
     return objects[choice], object_v[choice], best, choice < m, obstacle_dist
+
+
+class NearestCache:
+    """:func:`nearest_objects_tree` with the tree's candidates kept for many ticks (Verlet lists).
+
+    At a rebuild each robot gets its ``CACHED`` nearest other robots from a KD-tree, and the
+    distance ``R_i`` of the farthest of them: every other robot was at least ``R_i`` away. At a
+    later tick, with ``delta_i`` how far robot i has moved since and ``M`` the most any robot has,
+    a robot outside the list is still at least ``R_i - delta_i - M`` away; a robot whose nearest
+    candidate (or obstacle) is closer than that, with a margin for rounding, is decided by its
+    list alone, with the world's own distances and tie rule. The others are decided over every
+    object (a few), or, past :data:`REBUILD_SHARE` of the robots, the lists are built again. The
+    answer is the dense one, bit for bit (tests/unit/test_nearest.py).
+    """
+
+    CACHED = 8  # a lattice's 4 equally near neighbours and the next ring: margin to move before a rebuild
+    REBUILD_SHARE = 0.01
+
+    def __init__(self) -> None:
+        self.p0: np.ndarray | None = None
+        self.idx: np.ndarray | None = None
+        self.reach: np.ndarray | None = None
+        self.rebuilds = 0
+
+    def _rebuild(self, p: np.ndarray) -> None:
+        from scipy.spatial import cKDTree
+
+        k = min(self.CACHED + 1, len(p))
+        far, idx = cKDTree(p).query(p, k=k)
+        self.p0, self.idx = p.copy(), idx
+        # every robot not listed was at least this far (the tree's distances, less a rounding margin)
+        self.reach = far[:, -1] * (1.0 - ROUNDING) if k < len(p) else np.full(len(p), np.inf)
+        self.rebuilds += 1
+
+    def __call__(self, p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, obstacle_v: np.ndarray):
+        n, m = len(p), len(obstacles)
+        if self.p0 is None or self.p0.shape != p.shape:
+            self._rebuild(p)
+        moved = p - self.p0
+        delta = np.sqrt(moved[:, 0] * moved[:, 0] + moved[:, 1] * moved[:, 1] + moved[:, 2] * moved[:, 2])
+        bound = self.reach - delta - delta.max()  # the nearest any unlisted robot can be now
+        objects = np.concatenate([obstacles, p])
+        object_v = np.concatenate([obstacle_v, v])
+        idx = self.idx
+        own = np.arange(n)
+        if m:
+            obstacle_all = distances(p, np.broadcast_to(obstacles, (n, m, 3)))
+            obstacle_dist = obstacle_all.min(axis=1)
+        else:
+            obstacle_all, obstacle_dist = np.zeros((n, 0)), np.full(n, np.inf)
+        cand = np.concatenate([np.broadcast_to(np.arange(m), (n, m)), m + idx], axis=1)
+        dist = np.concatenate([obstacle_all, distances(p, p[idx])], axis=1)
+        dist[cand == m + own[:, None]] = np.inf  # a robot is not its own nearest object
+        best = dist.min(axis=1)
+        decided = best * (1.0 + ROUNDING) + 1e-300 < bound
+        undecided = np.flatnonzero(~decided)
+        if len(undecided) > self.REBUILD_SHARE * n + 1:
+            self._rebuild(p)
+            return self(p, v, obstacles, obstacle_v)
+        key = np.where(dist == best[:, None], cand, np.iinfo(np.intp).max)
+        choice = key.min(axis=1)
+        for i in undecided:  # decide over every object, as the world does
+            row = distances(p[i:i + 1], objects[None, :, :])[0]
+            row[m + i] = np.inf
+            choice[i] = int(row.argmin())
+            best[i] = row[choice[i]]
+        return objects[choice], object_v[choice], best, choice < m, obstacle_dist

@@ -63,3 +63,32 @@ def test_without_scipy_the_world_computes_the_same_in_blocks_of_rows(monkeypatch
     monkeypatch.setattr(world_node, "nearest_objects_tree", None)  # would fail if called
     for a, b in zip(want, world_node.nearest_objects(p, v, obstacles, obstacle_v)):
         assert a.tobytes() == b.tobytes()
+
+
+def test_the_cached_candidate_lists_give_the_dense_answer_tick_after_tick(monkeypatch):
+    from fxswarm.core.nearest import NearestCache
+
+    rng = np.random.default_rng(4)
+    p = lattice(500)  # exact ties at first, then random steps; a jump forces lists to be rebuilt
+    obstacles, obstacle_v = np.array([[10.0, 10.0, 0.5], [30.0, 4.0, 0.0]]), np.zeros((2, 3))
+    cache = NearestCache()
+    for tick in range(40):
+        v = rng.normal(size=p.shape)
+        want = dense(p, v, obstacles, obstacle_v, monkeypatch)
+        got = cache(p, v, obstacles, obstacle_v)
+        for name, a, b in zip(("po", "vo", "dist", "is_obstacle", "obstacle_dist"), want, got):
+            assert a.tobytes() == b.tobytes(), (tick, name)
+        p = p + (3.0 if tick == 20 else 0.05) * v
+    assert 2 <= cache.rebuilds < 10  # kept across ticks, rebuilt after the jump
+
+
+def test_the_world_keeps_candidate_lists_above_the_dense_limit():
+    from fxswarm.core.nearest import NearestCache
+    from fxswarm.core.scenario import parse
+    import tomllib
+
+    raw = tomllib.loads(open("configs/paper-fast.toml").read())
+    del raw["robots"], raw["graph"]
+    raw["swarm"] = {"count": world_node.DENSE_NEAREST_MAX + 1, "graph": "line", "start": "slots"}
+    world = world_node.WorldNode(parse(raw, "big.toml"), record=False)
+    assert isinstance(world._nearest, NearestCache)
