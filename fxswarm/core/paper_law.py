@@ -256,8 +256,10 @@ class BehaviouralBatch:
     @staticmethod
     def task_rates(x: np.ndarray, g) -> np.ndarray:
         """:func:`fxswarm.core.control.task_rate` of each element of ``x``."""
-        out = np.zeros(len(x))
         pos = x > 0.0
+        if pos.all():
+            return g.lam * powers(g.b1 * powers(x, g.r1) + g.b2 * powers(x, g.r2), g.r0)
+        out = np.zeros(len(x))
         xp = x[pos]
         out[pos] = g.lam * powers(g.b1 * powers(xp, g.r1) + g.b2 * powers(xp, g.r2), g.r0)
         return out
@@ -270,10 +272,14 @@ class BehaviouralBatch:
         ff = dph + offset_rate
         e2 = _dot(e, e)
         big = ~(e2 < EPS * EPS)
-        v = ff.copy()
-        eb, e2b, ffb = e[big], e2[big], ff[big]
-        c = -self.task_rates(0.5 * e2b, self.formation) + _dot(eb, ffb)
-        v[big] = eb / e2b[:, None] * c[:, None]  # eq. (v2)
+        if big.all():  # the usual case: no robot exactly on its slot
+            c = -self.task_rates(0.5 * e2, self.formation) + _dot(e, ff)
+            v = e / e2[:, None] * c[:, None]  # eq. (v2)
+        else:
+            v = ff.copy()
+            eb, e2b, ffb = e[big], e2[big], ff[big]
+            c = -self.task_rates(0.5 * e2b, self.formation) + _dot(eb, ffb)
+            v[big] = eb / e2b[:, None] * c[:, None]  # eq. (v2)
         d = self.d
         u = p - po
         uu = _dot(u, u)
