@@ -57,9 +57,10 @@ def batch_plan(sc: Scenario, plan: FaultPlan | None):
     if plan is not None and (plan.rules or plan.cuts or plan.processes):
         raise BatchUnsupported("the run has faults (the batch path takes none yet)")
     cls = resolve_law(sc.law, sc.law_folder)
-    form = getattr(cls, "batch", None)
+    form = vars(cls).get("batch")  # the class's own: a subclass that changes the law must say its batch form
     if form is None:
-        raise BatchUnsupported(f"law {sc.law!r} has no batch form")
+        raise BatchUnsupported(f"law {sc.law!r} has no batch form" +
+                               (" of its own (it inherits one)" if getattr(cls, "batch", None) else ""))
     if sc.law_params:
         raise BatchUnsupported("the law has [controller.params]")
     slots, weights, valid = neighbour_slots(sc)

@@ -152,3 +152,17 @@ def test_above_the_dense_limit_the_kd_tree_world_gives_both_paths_the_same_run()
     _, _, ta, tb = both(sc)
     assert_same(ta, tb)
     assert ta["avoid_active"].any()
+
+
+def test_a_law_that_only_inherits_a_batch_form_runs_per_robot(tmp_path, monkeypatch):
+    (tmp_path / "louder.py").write_text(
+        "from fxswarm.core.paper_law import BehaviouralLaw\n"
+        "class Louder(BehaviouralLaw):\n"
+        "    vectors = 'floats'\n"
+        "    def velocity(self, view, rate):\n"
+        "        return [2.0 * x for x in super().velocity(view, rate)]\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    sc = parse(generated(SWARMS[3], ticks=3, controller={"law": "louder:Louder"}), str(tmp_path / "gen.toml"),
+               str(tmp_path))
+    auto = Simulation(sc, path="auto")
+    assert auto.batch_law is None and "inherits" in auto.path_reason
