@@ -15,10 +15,10 @@ A scenario may describe its robots instead of listing them (docs/guide.md "Gener
     weights = 1.0           # every edge's a_ij; pin_gain = b_i of the pinned robots
 
 :func:`expand` turns that into today's explicit form (``[[robots]]`` with ``position`` and
-``offset``, ``[graph]`` with ``edges``, ``pinned`` and ``pin_gain``), the same document on
-every machine: offsets and edges use only correctly rounded arithmetic (and the C
-library's sin/cos for circle and sphere, once per slot), starts come from numpy's PCG64
-generator seeded with ``seed``. ``fxswarm expand SCENARIO`` prints that form.
+``offset``, ``[graph]`` with ``edges``, ``pinned`` and ``pin_gain``), the same document for
+the same file: offsets and edges use correctly rounded arithmetic (but for the C library's
+sin/cos of circle and sphere slots, the same only where that library is), starts come from
+numpy's PCG64 generator seeded with ``seed``. ``fxswarm expand SCENARIO`` prints that form.
 """
 
 from __future__ import annotations
