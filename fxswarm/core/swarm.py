@@ -234,11 +234,20 @@ def graph_edges(graph: str, offsets, spacing: float, *, k: int = 4, radius: floa
     return sorted({(min(i, j), max(i, j)) for i, j in edges})
 
 
+#: Above this many slots, with scipy, a KD-tree proposes the candidate pairs (the same edges).
+TREE_SLOTS = 2000
+
+
 def _metric_edges(graph: str, pts: np.ndarray, spacing: float, k: int, radius: float | None) -> list:
     """Edges chosen by the slots' distances, in blocks of rows (no n x n matrix at once).
     k-nearest: each robot with its k nearest (ties: the lower id), both ways; grid: slots one
     spacing apart; random-geometric: slots at most ``radius`` apart."""
     n = len(pts)
+    if n > TREE_SLOTS:
+        from fxswarm.core.nearest import have_tree
+
+        if have_tree():
+            return _tree_edges(graph, pts, spacing, k, radius)
     edges: list[tuple[int, int]] = []
     block = max(1, 2_000_000 // max(n, 1))
     limit = {"grid": (spacing * (1.0 + GRID_TOLERANCE)) ** 2,
@@ -268,6 +277,40 @@ def _metric_edges(graph: str, pts: np.ndarray, spacing: float, k: int, radius: f
             keep = ii < jj
             edges += list(zip((ii[keep] + 1).tolist(), (ids[jj[keep]] + 1).tolist()))
     return edges
+
+
+def _tree_edges(graph: str, pts: np.ndarray, spacing: float, k: int, radius: float | None) -> list:
+    """:func:`_metric_edges`' edges with a KD-tree proposing candidates: every pair the exact rule
+    could keep is within the tree's radius (widened for its rounding), and the exact squared
+    distances, in the same arithmetic and with the same tie rule, decide."""
+    from scipy.spatial import cKDTree
+
+    n = len(pts)
+    tree = cKDTree(pts)
+    slack = 1.0 + 1e-9
+    if graph == "k-nearest":
+        kk = min(k, n - 1)
+        if kk <= 0:
+            return []
+        far, _ = tree.query(pts, k=kk + 1)  # itself and its kk nearest, by the tree's distances
+        lists = tree.query_ball_point(pts, far[:, -1] * slack + 1e-300)
+        lens = np.fromiter((len(x) for x in lists), dtype=np.intp, count=n)
+        ii = np.repeat(np.arange(n), lens)
+        jj = np.fromiter((j for x in lists for j in x), dtype=np.intp, count=int(lens.sum()))
+        d = pts[ii] - pts[jj]
+        d2 = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
+        d2[ii == jj] = np.inf
+        order = np.lexsort((jj, d2, ii))
+        ii, jj = ii[order], jj[order]
+        first = np.searchsorted(ii, np.arange(n))
+        keep = np.arange(len(ii)) - first[ii] < kk
+        return list(zip((ii[keep] + 1).tolist(), (jj[keep] + 1).tolist()))
+    limit = (spacing * (1.0 + GRID_TOLERANCE)) ** 2 if graph == "grid" else radius * radius
+    pairs = tree.query_pairs(np.sqrt(limit) * slack, output_type="ndarray")
+    ii, jj = pairs[:, 0], pairs[:, 1]
+    d = pts[ii] - pts[jj]
+    keep = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2] <= limit
+    return list(zip((np.minimum(ii, jj)[keep] + 1).tolist(), (np.maximum(ii, jj)[keep] + 1).tolist()))
 
 
 def unreachable(count: int, edges, pinned: list[int]) -> list[int]:

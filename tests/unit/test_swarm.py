@@ -154,3 +154,15 @@ def test_a_campaign_grid_over_swarm_count_and_graph_parameters(tmp_path):
     listed.write_text(open("configs/paper-fast.toml").read())
     with pytest.raises(CampaignError, match="no \\[swarm\\] table"):
         make_plan(str(listed), load(listed), tmp_path / "d", [], axes[:1], [None], 1, 1, Criteria(1.0, None, 0.2))
+
+
+@pytest.mark.parametrize("shape,graph,kw", [("grid", "k-nearest", {"k": 4}), ("sphere", "k-nearest", {"k": 6}),
+                                            ("grid", "grid", {}), ("sphere", "random-geometric", {"radius": 2.2})])
+def test_a_kd_tree_proposes_the_same_edges_the_exact_rule_keeps(shape, graph, kw, monkeypatch):
+    from fxswarm.core import swarm
+
+    off = formation_offsets(shape, 900, 2.0)  # a grid's exact ties included
+    monkeypatch.setattr(swarm, "TREE_SLOTS", 10**9)
+    brute = graph_edges(graph, off, 2.0, **kw)
+    monkeypatch.setattr(swarm, "TREE_SLOTS", 100)
+    assert graph_edges(graph, off, 2.0, **kw) == brute and len(brute) > 900
