@@ -7,6 +7,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import glob
+import json
 import tomllib
 import warnings
 
@@ -50,8 +51,10 @@ def test_every_shipped_config_batch_equals_per_robot_or_falls_back_saying_why(pa
         return
     sa, sb, ta, tb = both(shortened(sc, 40 if sc.n > 20 else 120))
     assert_same(ta, tb)
-    assert sa["speed_limited_ticks"] == sb["speed_limited_ticks"]
-    assert sa["formation_error_final_m"] == sb["formation_error_final_m"]
+    # the summaries too, but for the stepping time, the bus's counts and the path itself
+    own = ("wall_s", "counters", "path")
+    assert json.dumps({k: v for k, v in sa.items() if k not in own}) == \
+        json.dumps({k: v for k, v in sb.items() if k not in own})
 
 
 LEADER = {"kind": "helix", "centre": [0.0, 0.0, 0.0], "radius": 2.0, "rate": 0.05, "climb": 0.5}
