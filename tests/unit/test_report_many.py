@@ -20,7 +20,7 @@ def swarm_trajectory(n: int, ticks: int = 12) -> dict:
             "obstacles": np.zeros((ticks, 2, 3)) + [0.0, 0.0, 5.0]}
 
 
-def test_figures_of_a_thousand_robots_show_the_spread_with_a_short_legend(tmp_path, monkeypatch):
+def test_figures_of_hundreds_of_robots_show_the_spread_with_a_short_legend(tmp_path, monkeypatch):
     kept = []
     real_save = figures._save
     monkeypatch.setattr(figures, "_save", lambda fig, path, law=None: kept.append(fig) or real_save(fig, path, law))
