@@ -41,6 +41,10 @@ class Simulation:
     """A lock-step swarm in one process. ``run()`` returns the summary.
 
     plan: the run's resolved fault plan (default: the scenario's ``[faults]`` alone).
+    path: ``"per-robot"`` (an agent node per robot on the bus), ``"auto"`` (the batch path,
+    fxswarm.launch.batch, when it takes the run; ``path_reason`` says why not) or ``"batch"``
+    (that, or :class:`~fxswarm.core.laws.BatchUnsupported`); the trajectories are the same.
+    record_every: the world records every K-th tick.
     """
 
     scenario: Scenario

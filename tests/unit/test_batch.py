@@ -191,3 +191,27 @@ def test_fxswarm_sim_says_which_path_and_why(tmp_path):
     assert summary["path"] == "per-robot" and "faults" in summary["path_reason"]
     done = subprocess.run(run + fault + ["--path", "batch", "--out", str(tmp_path / "c")], capture_output=True, text=True)
     assert done.returncode == 2 and "--path batch: the run has faults" in done.stderr and not (tmp_path / "c").exists()
+
+
+def test_a_non_finite_value_on_the_batch_path_runs_it_again_per_robot(monkeypatch, capsys):
+    from fxswarm.core.paper_law import BehaviouralBatch
+
+    sc = parse(generated(SWARMS[3], ticks=20), "gen.toml")
+    want = Simulation(sc, path="per-robot")
+    want.run()
+    real = BehaviouralBatch.estimate_rates
+    calls = []
+
+    def flaky(self, ph, p0):  # the batch form going wrong at its 5th tick (the per-robot law does not)
+        calls.append(1)
+        out = real(self, ph, p0)
+        if len(calls) == 5:
+            out[3, 1] = np.nan
+        return out
+
+    monkeypatch.setattr(BehaviouralBatch, "estimate_rates", flaky)
+    sim = Simulation(sc, path="auto")
+    summary = sim.run()
+    assert summary["path"] == "per-robot" and "non-finite value at tick 4" in summary["path_reason"]
+    assert "running again per robot" in capsys.readouterr().err
+    assert_same(want.trajectory(), sim.trajectory())
