@@ -179,8 +179,9 @@ class BehaviouralBatch:
     and the rest is elementwise +, -, *, /, sqrt, correctly rounded in both. So its
     trajectories equal the per-robot path's bit for bit (tests/unit/test_batch.py).
 
-    Explicit Euler, ``tracking = "paper"`` only: anything else raises
-    :class:`~fxswarm.core.laws.BatchUnsupported` (the simulator then steps per robot).
+    Explicit Euler only (the semi-implicit step raises :class:`~fxswarm.core.laws.BatchUnsupported`:
+    the simulator then steps per robot); with ``tracking = "feedforward"`` the leader-velocity
+    observer, eq. (obs), and eqs. (11ff), (v2ff), as :class:`fxswarm.agents.node.AgentNode` runs them.
 
     ``slots``: (n, S) int, robot i's s-th row: an index into ``[ph of the n robots; p0]``;
     ``weights``: (n, S) its ``a_ij`` / ``b_i``; ``valid``: (n, S) bool, whether the slot holds a row.
@@ -190,9 +191,22 @@ class BehaviouralBatch:
         sc = scenario
         if sc.discretisation != "euler":
             raise BatchUnsupported(f"discretisation = {sc.discretisation!r} (the batch form is explicit Euler)")
-        if sc.tracking != "paper":
-            raise BatchUnsupported(f"[estimator] tracking = {sc.tracking!r}")
         self.formation, self.avoidance, self.estimator, self.d = sc.formation, sc.avoidance, sc.estimator, sc.d
+        self.feedforward = sc.tracking == "feedforward"
+        if self.feedforward:  # eq. (obs)'s links: the upstream neighbours (oriented) or all, then the leader
+            from fxswarm.core.observer import observer_weights
+
+            obs = observer_weights(sc.a, sc.b, sc.observer_graph)
+            n = len(slots)
+            o_slots, o_weights, o_valid = np.full(slots.shape, n), np.zeros(slots.shape), np.zeros(slots.shape, bool)
+            for i in range(n):
+                ids = [int(j) for j, ok in zip(slots[i], valid[i]) if ok and j < n and obs[i, j] > 0]
+                ws = [float(obs[i, j]) for j in ids]
+                if sc.b[i] > 0:
+                    ids.append(n)
+                    ws.append(float(sc.b[i]))
+                o_slots[i, :len(ids)], o_weights[i, :len(ws)], o_valid[i, :len(ids)] = ids, ws, True
+            self.observer, self._observer = sc.observer, (o_slots, o_weights, o_valid)
         self.slots, self.weights, self.valid = slots, weights, valid
         self.pairwise = sc.estimator.power != "aggregate"
         # per slot: the robots that have a row there (all of them for the first slots, typically)
@@ -253,6 +267,39 @@ class BehaviouralBatch:
         sign = np.where(E > 0.0, g.K3, np.where(E < 0.0, -g.K3, 0.0))
         return -g.K1 * P - g.K2 * Q - sign
 
+    def observer_rates(self, vh: np.ndarray, v0: np.ndarray) -> np.ndarray:
+        """``dvh/dt`` of every robot, (n, 3): eq. (obs), as
+        :func:`fxswarm.core.observer.velocity_observer_rate` (``tracking = "feedforward"``)."""
+        g = self.observer
+        a1, a2 = g.r3 / g.r4, g.r5 / g.r6
+        pairwise = g.power != "aggregate"
+        slots, weights, valid = self._observer
+        src = np.concatenate([vh, v0.reshape(1, 3)])
+        n = len(vh)
+        P, Q, E = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+        for s in range(slots.shape[1]):
+            rows = np.flatnonzero(valid[:, s])
+            if not len(rows):
+                continue
+            D = vh[rows] - src[slots[rows, s]]
+            W = weights[rows, s, None]
+            E[rows] = E[rows] + W * D
+            if pairwise:
+                nz = D != 0.0
+                r, ax = np.nonzero(nz)
+                ad = np.abs(D[r, ax])
+                w = W[r, 0]
+                at = (rows[r], ax)
+                P[at] = P[at] + np.copysign(w * powers(ad, a1), D[r, ax])
+                Q[at] = Q[at] + np.copysign(w * powers(ad, a2), D[r, ax])
+        if not pairwise:
+            nz = E != 0.0
+            e = E[nz]
+            P[nz] = np.copysign(powers(np.abs(e), a1), e)
+            Q[nz] = np.copysign(powers(np.abs(e), a2), e)
+        sign = np.where(E > 0.0, 1.0, np.where(E < 0.0, -1.0, 0.0))
+        return -g.K1 * P - g.K2 * Q - g.K3 * sign  # eq. (obs)
+
     @staticmethod
     def task_rates(x: np.ndarray, g) -> np.ndarray:
         """:func:`fxswarm.core.control.task_rate` of each element of ``x``."""
@@ -264,12 +311,14 @@ class BehaviouralBatch:
         out[pos] = g.lam * powers(g.b1 * powers(xp, g.r1) + g.b2 * powers(xp, g.r2), g.r0)
         return out
 
-    def velocities(self, p, ph, dph, offset, offset_rate, po, vo, sensed) -> tuple[np.ndarray, np.ndarray]:
-        """``(v, avoid_active)``: eq. (v2) merged with eq. (v1) by eq. (v) inside the repulsive zone,
-        as :func:`fxswarm.core.control.behaviour_velocity` (no speed limit). ``sensed``: (n,) whether
-        the robot senses an object (``po``, ``vo`` rows are ignored where not)."""
+    def velocities(self, p, ph, dph, offset, offset_rate, po, vo, sensed,
+                   reference: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(v, avoid_active)``: eq. (v2) (following ``reference``, the observed leader velocity,
+        instead of ``dph`` when given: eq. (v2ff)) merged with eq. (v1) by eq. (v) inside the
+        repulsive zone, as :func:`fxswarm.core.control.behaviour_velocity` (no speed limit).
+        ``sensed``: (n,) whether the robot senses an object (``po``, ``vo`` rows are ignored where not)."""
         e = p - ph - offset  # eq. (ctbf)
-        ff = dph + offset_rate
+        ff = (dph if reference is None else reference) + offset_rate
         e2 = _dot(e, e)
         big = ~(e2 < EPS * EPS)
         if big.all():  # the usual case: no robot exactly on its slot

@@ -8,7 +8,7 @@ its sensing, integration and record) with one batch call per tick instead of n a
 their messages. Its trajectories equal the per-robot path's bit for bit (tests/unit/test_batch.py).
 
 What it takes (else :func:`batch_plan` says why, and the simulator steps per robot):
-lock-step, no fault plan, a law with a batch form, explicit Euler, ``tracking = "paper"``.
+lock-step, no fault plan, a law with a batch form, explicit Euler.
 Its assumptions in a healthy lock-step run (every robot holds every neighbour's estimate of
 the current tick, so delay compensation, staleness and extrapolation never act) are those
 of the per-robot path without faults.
@@ -102,6 +102,7 @@ class BatchRun:
         self.ph = np.array([r.estimate for r in sc.robots], dtype=float)
         self.offsets = _Offsets(sc)
         self.speed_limited = 0
+        self.vh = np.zeros((sc.n, 3))  # tracking = "feedforward": each robot's estimate of the leader's velocity
 
     def run(self, progress=None) -> float:
         """Every tick; returns the stepping wall time, s. ``progress(world, ticks_per_s)`` about
@@ -119,8 +120,15 @@ class BatchRun:
             p0 = np.asarray(sc.leader.position(t), dtype=float)
             offset, offset_rate = self.offsets.at(t)
             ph = self.ph
-            dph = law.estimate_rates(ph, p0)
-            v, avoid = law.velocities(p, ph, dph, offset, offset_rate, po, vo, sensed)
+            try:
+                dph = law.estimate_rates(ph, p0)
+                vh = None
+                if law.feedforward:  # eqs. (11ff), (v2ff) on vh(k); then eq. (obs) steps vh, as AgentNode.act
+                    vh = self.vh
+                    dph = dph + vh
+                v, avoid = law.velocities(p, ph, dph, offset, offset_rate, po, vo, sensed, reference=vh)
+            except ArithmeticError as exc:  # a power overflowed: per robot, that robot's law_error
+                raise BatchUnsupported(f"a law raised {type(exc).__name__} at tick {k} (law_error)") from None
             if not (np.isfinite(dph).all() and np.isfinite(v).all()):
                 raise BatchUnsupported(f"a law gave a non-finite value at tick {k} (law_error)")
             if v_max is not None:  # the node's speed limit, as limit_speed
@@ -135,6 +143,9 @@ class BatchRun:
             world.move(dt)
             world.tick += 1
             self.ph = ph + dt * dph  # explicit Euler (SPEC 7), as AgentNode.act
+            if vh is not None:
+                v0 = np.asarray(sc.leader.velocity(t), dtype=float)
+                self.vh = vh + dt * law.observer_rates(vh, v0)
             now = time.perf_counter()
             if progress is not None and now - last > 0.5:
                 progress(world, world.tick / (now - start))

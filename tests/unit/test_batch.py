@@ -104,10 +104,25 @@ def test_other_built_in_families_and_the_aggregate_power_batch_equals_per_robot(
     assert_same(ta, tb)
 
 
+@pytest.mark.parametrize("law,estimator", [
+    ("fixed-time+feedforward", {}),
+    ("fixed-time+feedforward", {"power": "aggregate"}),
+    ("asymptotic+feedforward", {"observer_K3": 0.5}),
+])
+def test_the_feedforward_laws_batch_equals_per_robot(law, estimator):
+    # the leader-velocity observer, eq. (obs), with eqs. (11ff) and (v2ff): vh travels with ph
+    sc = parse(generated(SWARMS[0], ticks=80, controller={"law": law}, estimator=estimator,
+                         scenario={"v_max": 2.0}), "gen.toml")
+    assert sc.tracking == "feedforward"
+    sa, sb, ta, tb = both(sc)
+    assert_same(ta, tb)
+    assert sa["speed_limited_ticks"] == sb["speed_limited_ticks"]
+
+
 @pytest.mark.parametrize("change,why", [
     ({"faults": {"links": [{"link": "agent:*->agent:*", "kinds": ["estimate"], "drop": 0.2}]}}, "faults"),
     ({"controller": {"discretisation": "semi-implicit"}}, "discretisation"),
-    ({"controller": {"law": "fixed-time+feedforward"}}, "tracking"),
+    ({"controller": {"law": "fixed-time+feedforward", "discretisation": "semi-implicit"}}, "discretisation"),
 ])
 def test_what_the_batch_path_does_not_take_runs_per_robot_and_says_why(change, why):
     sc = parse(generated(SWARMS[3], ticks=5, **change), "gen.toml")
@@ -214,4 +229,20 @@ def test_a_non_finite_value_on_the_batch_path_runs_it_again_per_robot(monkeypatc
     summary = sim.run()
     assert summary["path"] == "per-robot" and "non-finite value at tick 4" in summary["path_reason"]
     assert "running again per robot" in capsys.readouterr().err
+    assert_same(want.trajectory(), sim.trajectory())
+
+
+def test_a_power_overflow_on_the_batch_path_runs_it_again_per_robot(capsys):
+    # The observer over the undirected ring diverges here: a power overflows at tick 79, which per
+    # robot is that robot's law_error (zero velocity, flagged), not a crash. The batch path does not
+    # model law errors: it starts again per robot.
+    sc = parse(generated(SWARMS[1], ticks=80, controller={"law": "fixed-time+feedforward"},
+                         estimator={"observer_graph": "undirected"}, scenario={"v_max": 2.0}), "gen.toml")
+    want = Simulation(sc, path="per-robot")
+    want_summary = want.run()
+    sim = Simulation(sc, path="auto")
+    summary = sim.run()
+    assert summary["path"] == "per-robot" and "OverflowError" in summary["path_reason"]
+    assert "running again per robot" in capsys.readouterr().err
+    assert want_summary["law"]["errors"] and summary["law"] == want_summary["law"]
     assert_same(want.trajectory(), sim.trajectory())
