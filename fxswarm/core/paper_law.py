@@ -18,7 +18,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from fxswarm.core.control import (
-    COINCIDENT_PUSH_DIRECTION, EPS, powers, ControlOutput, ControlParameters, Vec, behaviour_velocity, estimator_rate_step, in_repulsive_zone,
+    COINCIDENT_PUSH_DIRECTION, EPS, formation_velocity_semi_implicit, powers, ControlOutput, ControlParameters, Vec, behaviour_velocity, estimator_rate_step, in_repulsive_zone,
 )
 from fxswarm.core.laws import BatchUnsupported, LawError, LawView, limit_speed
 
@@ -179,9 +179,9 @@ class BehaviouralBatch:
     and the rest is elementwise +, -, *, /, sqrt, correctly rounded in both. So its
     trajectories equal the per-robot path's bit for bit (tests/unit/test_batch.py).
 
-    Explicit Euler only (the semi-implicit step raises :class:`~fxswarm.core.laws.BatchUnsupported`:
-    the simulator then steps per robot); with ``tracking = "feedforward"`` the leader-velocity
-    observer, eq. (obs), and eqs. (11ff), (v2ff), as :class:`fxswarm.agents.node.AgentNode` runs them.
+    With ``tracking = "feedforward"`` the leader-velocity observer, eq. (obs), and eqs. (11ff),
+    (v2ff), as :class:`fxswarm.agents.node.AgentNode` runs them. Under ``discretisation =
+    "semi-implicit"`` the implicit solves run robot by robot through the per-robot functions.
 
     ``slots``: (n, S) int, robot i's s-th row: an index into ``[ph of the n robots; p0]``;
     ``weights``: (n, S) its ``a_ij`` / ``b_i``; ``valid``: (n, S) bool, whether the slot holds a row.
@@ -189,9 +189,11 @@ class BehaviouralBatch:
 
     def __init__(self, scenario, slots: np.ndarray, weights: np.ndarray, valid: np.ndarray) -> None:
         sc = scenario
-        if sc.discretisation != "euler":
-            raise BatchUnsupported(f"discretisation = {sc.discretisation!r} (the batch form is explicit Euler)")
         self.formation, self.avoidance, self.estimator, self.d = sc.formation, sc.avoidance, sc.estimator, sc.d
+        # The semi-implicit step (bracketed Newton per robot and axis) is solved robot by robot by
+        # the per-robot form's own functions, on the same numbers: exact by construction.
+        self.semi_implicit = sc.discretisation == "semi-implicit"
+        self._gains = ControlParameters(sc.formation, sc.avoidance, sc.estimator, sc.d, semi_implicit=True)
         self.feedforward = sc.tracking == "feedforward"
         if self.feedforward:  # eq. (obs)'s links: the upstream neighbours (oriented) or all, then the leader
             from fxswarm.core.observer import observer_weights
@@ -227,8 +229,25 @@ class BehaviouralBatch:
         table[i_idx[~robot], s_idx[~robot]] = len(links) + np.arange(len(self._pinned))
         self._table = table
 
-    def estimate_rates(self, ph: np.ndarray, p0: np.ndarray) -> np.ndarray:
-        """``dph/dt`` of every robot, (n, 3): eq. (11), as :func:`fxswarm.core.control.estimator_rate`."""
+    def estimate_rates(self, ph: np.ndarray, p0: np.ndarray, dt: float = 0.0,
+                       vh: np.ndarray | None = None) -> np.ndarray:
+        """``dph/dt`` of every robot, (n, 3): eq. (11), as :func:`fxswarm.core.control.estimator_rate`
+        (eq. (11ff) with the observed leader velocities ``vh``: added after, as there); under the
+        semi-implicit step, :func:`fxswarm.core.control.estimator_rate_step` robot by robot."""
+        if self.semi_implicit:
+            src = np.concatenate([ph, p0.reshape(1, 3)]).tolist()
+            phs, vhs = ph.tolist(), (None if vh is None else vh.tolist())
+            out = []
+            for i, (slots, weights, valid) in enumerate(zip(self.slots.tolist(), self.weights.tolist(),
+                                                            self.valid.tolist())):
+                rows = [src[j] for j, ok in zip(slots, valid) if ok]
+                ws = [w for w, ok in zip(weights, valid) if ok]
+                out.append(estimator_rate_step(phs[i], rows, ws, self._gains, dt, None if vhs is None else vhs[i]))
+            return np.array(out, dtype=float).reshape(-1, 3)
+        rates = self._explicit_rates(ph, p0)
+        return rates if vh is None else rates + vh  # eq. (11ff)
+
+    def _explicit_rates(self, ph: np.ndarray, p0: np.ndarray) -> np.ndarray:
         g = self.estimator
         a1, a2 = g.r3 / g.r4, g.r5 / g.r6
         n = len(ph)
@@ -312,7 +331,7 @@ class BehaviouralBatch:
         return out
 
     def velocities(self, p, ph, dph, offset, offset_rate, po, vo, sensed,
-                   reference: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                   reference: np.ndarray | None = None, dt: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """``(v, avoid_active)``: eq. (v2) (following ``reference``, the observed leader velocity,
         instead of ``dph`` when given: eq. (v2ff)) merged with eq. (v1) by eq. (v) inside the
         repulsive zone, as :func:`fxswarm.core.control.behaviour_velocity` (no speed limit).
@@ -321,7 +340,11 @@ class BehaviouralBatch:
         ff = (dph if reference is None else reference) + offset_rate
         e2 = _dot(e, e)
         big = ~(e2 < EPS * EPS)
-        if big.all():  # the usual case: no robot exactly on its slot
+        if self.semi_implicit:  # robot by robot, as behaviour_velocity (the estimate's own rate, no reference)
+            g = self.formation
+            v = np.array([formation_velocity_semi_implicit(ei, di, ri, g, dt) for ei, di, ri in
+                          zip(e.tolist(), dph.tolist(), offset_rate.tolist())], dtype=float).reshape(-1, 3)
+        elif big.all():  # the usual case: no robot exactly on its slot
             c = -self.task_rates(0.5 * e2, self.formation) + _dot(e, ff)
             v = e / e2[:, None] * c[:, None]  # eq. (v2)
         else:

@@ -8,7 +8,7 @@ its sensing, integration and record) with one batch call per tick instead of n a
 their messages. Its trajectories equal the per-robot path's bit for bit (tests/unit/test_batch.py).
 
 What it takes (else :func:`batch_plan` says why, and the simulator steps per robot):
-lock-step, no fault plan, a law with a batch form, explicit Euler.
+lock-step, no fault plan, a law with a batch form of its own.
 Its assumptions in a healthy lock-step run (every robot holds every neighbour's estimate of
 the current tick, so delay compensation, staleness and extrapolation never act) are those
 of the per-robot path without faults.
@@ -121,12 +121,11 @@ class BatchRun:
             offset, offset_rate = self.offsets.at(t)
             ph = self.ph
             try:
-                dph = law.estimate_rates(ph, p0)
-                vh = None
-                if law.feedforward:  # eqs. (11ff), (v2ff) on vh(k); then eq. (obs) steps vh, as AgentNode.act
-                    vh = self.vh
-                    dph = dph + vh
-                v, avoid = law.velocities(p, ph, dph, offset, offset_rate, po, vo, sensed, reference=vh)
+                # eqs. (11ff), (v2ff) on vh(k) with feedforward; then eq. (obs) steps vh, as AgentNode.act
+                vh = self.vh if law.feedforward else None
+                dph = law.estimate_rates(ph, p0, dt, vh)
+                reference = vh if vh is not None and not law.semi_implicit else None  # eq. (v2ff): explicit only
+                v, avoid = law.velocities(p, ph, dph, offset, offset_rate, po, vo, sensed, reference, dt)
             except ArithmeticError as exc:  # a power overflowed: per robot, that robot's law_error
                 raise BatchUnsupported(f"a law raised {type(exc).__name__} at tick {k} (law_error)") from None
             if not (np.isfinite(dph).all() and np.isfinite(v).all()):
