@@ -15,6 +15,7 @@ import sys
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "sim": ("fxswarm.launch.sim_cli", "run a scenario in one process (lock-step, in-memory bus)"),
+    "expand": ("fxswarm.launch.expand", "print a scenario's explicit form (its [swarm] table written out as robots and graph)"),
     "run": ("fxswarm.launch.launcher", "run a scenario as one OS process per role over Zenoh"),
     "world": ("fxswarm.world.process", "the world process"),
     "leader": ("fxswarm.leader.process", "the virtual leader process"),

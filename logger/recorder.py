@@ -76,7 +76,8 @@ class LinkHealth:
 
     def __init__(self, sc: Scenario) -> None:
         ids = [r.id for r in sc.robots]
-        self.edges = [(i, j) for i in ids for j in ids if i < j and sc.a[i - 1, j - 1] > 0]
+        upper_i, upper_j = np.nonzero(np.triu(sc.a > 0, 1))  # row by row, as a double loop over i < j: O(edges) in Python
+        self.edges = list(zip((upper_i + 1).tolist(), (upper_j + 1).tolist()))
         self.edges += [(0, i) for i in ids if sc.is_pinned(i)]
         self.names = [f"{'L' if i == 0 else i}-{j}" for i, j in self.edges]
         self.directed = directed_links(sc)

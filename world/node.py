@@ -30,10 +30,15 @@ from fxswarm.core import bus as topics
 from fxswarm.core.drive import step_double_integrator, step_unicycle
 from fxswarm.core.messages import Clock, Command, Message, Sense, WorldState
 from fxswarm.core.motion import Static
+from fxswarm.core.nearest import NearestCache, have_tree, nearest_objects_blocked, nearest_objects_tree
 from fxswarm.core.pacing import Deadline, Pacer, WallClock
 from fxswarm.core.scenario import Scenario
 from fxswarm.core.sensing import Sensors
 from fxswarm.faults.plan import DegradedLimits, degraded_limits
+
+
+#: Above this many robots the nearest object comes from a KD-tree, not an n x (n + m) matrix.
+DENSE_NEAREST_MAX = 400
 
 
 def nearest_objects(p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, obstacle_v: np.ndarray):
@@ -45,6 +50,10 @@ def nearest_objects(p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, obstacl
     (inf without obstacles). With one robot and no obstacle, ``dist`` is inf.
     """
     n = len(p)
+    if n > DENSE_NEAREST_MAX:  # no n x n matrix (fxswarm.core.nearest): the same answer from a KD-tree
+        if have_tree():
+            return nearest_objects_tree(p, v, obstacles, obstacle_v)
+        return nearest_objects_blocked(p, v, obstacles, obstacle_v)  # without scipy: in blocks of rows
     objects = np.concatenate([obstacles, p])
     object_v = np.concatenate([obstacle_v, v])
     diff = p[:, None, :] - objects[None, :, :]
@@ -69,10 +78,14 @@ def _self_index(n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
 class WorldNode:
     """The world of scenario ``sc``: robots' true state, obstacles, the clock, the record."""
 
-    def __init__(self, scenario: Scenario, record: bool = True, limits: DegradedLimits | None = None) -> None:
+    def __init__(self, scenario: Scenario, record: bool = True, limits: DegradedLimits | None = None,
+                 record_every: int = 1) -> None:
         self.sc = scenario
         n, ticks = scenario.n, scenario.ticks
+        self.record_every = record_every  # trajectory.npz keeps ticks 0, K, 2K, ... (fxswarm sim --record-every)
         self.p = np.array([r.position for r in scenario.robots], dtype=float)
+        # Above the dense limit with scipy: KD-tree candidate lists kept across ticks (fxswarm.core.nearest)
+        self._nearest = NearestCache() if n > DENSE_NEAREST_MAX and have_tree() else nearest_objects
         self.v = np.zeros((n, 3))  # held commands (zero until a robot speaks)
         self.ph = np.array([r.estimate for r in scenario.robots], dtype=float)
         self.avoid = np.zeros(n, dtype=bool)
@@ -112,7 +125,8 @@ class WorldNode:
         self._models(scenario)
         self.record = record
         if record:
-            self.rec_t = np.arange(ticks) * scenario.dt
+            self.rec_t = np.arange(0, ticks, record_every) * scenario.dt
+            ticks = len(self.rec_t)
             self.rec_p = np.zeros((ticks, n, 3))
             self.rec_ph = np.zeros((ticks, n, 3))
             self.rec_v = np.zeros((ticks, n, 3))
@@ -348,7 +362,7 @@ class WorldNode:
     def _sense_now(self):
         t = self.t
         obstacles, obstacle_v = self._fixed_obstacles or self.obstacle_state(t)
-        po, vo, dist, _, obstacle_dist = nearest_objects(
+        po, vo, dist, _, obstacle_dist = self._nearest(
             self.p, self.v if self.drives is None else self.vel, obstacles, obstacle_v)
         self._sensed = (obstacles, dist, obstacle_dist)
         return po, vo, dist
@@ -407,9 +421,10 @@ class WorldNode:
             None if self.heading is None else self.heading.copy())
 
     def _record(self) -> None:
-        k = self.tick
-        if not self.record or k >= self.sc.ticks:
+        k, every = self.tick, self.record_every
+        if not self.record or k >= self.sc.ticks or k % every:
             return
+        k //= every
         obstacles, dist, obstacle_dist = self._sensed if self._sensed is not None else self._sense_now()
         self.rec_p[k] = self.p
         self.rec_ph[k] = self.ph
@@ -425,7 +440,7 @@ class WorldNode:
 
     def trajectory(self) -> dict[str, np.ndarray]:
         """The recorded run, as saved to ``trajectory.npz`` (shapes in README)."""
-        ticks = min(self.tick, self.sc.ticks)
+        ticks = -(-min(self.tick, self.sc.ticks) // self.record_every)  # the ticks recorded so far
         t = self.rec_t[:ticks]
         return {
             "t": t,

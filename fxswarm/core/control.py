@@ -21,6 +21,7 @@ check that one against.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -93,6 +94,17 @@ class ControlOutput(NamedTuple):
     e: list[float]  # formation error against the robot's own estimate, m
     avoid_active: bool
     speed_limited: bool
+
+
+def powers(x, a: float):
+    """``x ** a`` for each float of the array ``x`` (>= 0), as a float64 array: Python's float
+    power, the C library's ``pow``, element by element. The batch form of the law
+    (fxswarm.core.paper_law.BehaviouralBatch) raises with this, the per-robot form with ``**``:
+    the same function on the same numbers. Not ``np.power``: numpy may dispatch it to a
+    vectorised pow that differs in the last bit (docs/design.md "Bit for bit: batch and per robot")."""
+    import numpy as np  # the per-robot hot path above stays numpy-free
+
+    return np.fromiter(map(pow, x.tolist(), itertools.repeat(a)), dtype=float, count=len(x))
 
 
 def dot3(a: Vec, b: Vec) -> float:

@@ -41,6 +41,11 @@ class LawError(ValueError):
     """A law cannot be used: the message says why (the caller adds the file and the field)."""
 
 
+class BatchUnsupported(Exception):
+    """A law's batch form cannot step this run exactly as the per-robot form would (the
+    message says why): the simulator then steps it per robot (fxswarm.launch.batch)."""
+
+
 class LawView:
     """What robot ``robot_id`` knows at this tick: the one argument of a law's methods.
 

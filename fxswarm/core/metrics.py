@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from fxswarm.core.bounds import estimator_bound_printed, fixed_time_bound
+from fxswarm.core.bounds import estimator_bound_printed, fixed_time_bound, h_of
 from fxswarm.core.scenario import Scenario
 
 
@@ -93,6 +93,6 @@ def summarise(sc: Scenario, traj: dict[str, np.ndarray], wall_s: float) -> dict:
         "fixed_time_bounds_s": {
             "formation": _finite_or_none(fixed_time_bound(sc.formation)),
             "avoidance": _finite_or_none(fixed_time_bound(sc.avoidance)),
-            "estimator": _finite_or_none(estimator_bound_printed(sc.H, sc.estimator)),
+            "estimator": _finite_or_none(estimator_bound_printed(h_of(sc.a, sc.b), sc.estimator)),
         },
     }

@@ -15,10 +15,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import numpy as np
+
 from fxswarm.core.control import (
-    ControlOutput, ControlParameters, Vec, behaviour_velocity, estimator_rate_step, in_repulsive_zone,
+    COINCIDENT_PUSH_DIRECTION, EPS, formation_velocity_semi_implicit, powers, ControlOutput, ControlParameters, Vec, behaviour_velocity, estimator_rate_step, in_repulsive_zone,
 )
-from fxswarm.core.laws import LawError, LawView, limit_speed
+from fxswarm.core.laws import BatchUnsupported, LawError, LawView, limit_speed
 
 #: The law families of the paper's law: the same equations, exponents chosen for fixed-time
 #: (the paper), asymptotic or finite-time convergence (fxswarm.core.scenario VARIANTS).
@@ -166,3 +168,215 @@ def robot_control(
     e = [p[0] - ph[0] - p0[0], p[1] - ph[1] - p0[1], p[2] - ph[2] - p0[2]]  # eq. (ctbf)
     active = po is not None and in_repulsive_zone(p, po, law.d)
     return ControlOutput(v, list(dph), e, active, limited)
+
+
+class BehaviouralBatch:
+    """The batch form of :class:`BehaviouralLaw`: every robot's step at once, on arrays.
+
+    The same law, operation for operation: each robot's sums run over its rows in the
+    per-robot order (a loop over neighbour slots, vectorised across robots), every power is
+    :func:`fxswarm.core.control.powers` (the C library's pow, as ``**`` in the per-robot form),
+    and the rest is elementwise +, -, *, /, sqrt, correctly rounded in both. So its
+    trajectories equal the per-robot path's bit for bit (tests/unit/test_batch.py).
+
+    With ``tracking = "feedforward"`` the leader-velocity observer, eq. (obs), and eqs. (11ff),
+    (v2ff), as :class:`fxswarm.agents.node.AgentNode` runs them. Under ``discretisation =
+    "semi-implicit"`` the implicit solves run robot by robot through the per-robot functions.
+
+    ``slots``: (n, S) int, robot i's s-th row: an index into ``[ph of the n robots; p0]``;
+    ``weights``: (n, S) its ``a_ij`` / ``b_i``; ``valid``: (n, S) bool, whether the slot holds a row.
+    """
+
+    def __init__(self, scenario, slots: np.ndarray, weights: np.ndarray, valid: np.ndarray) -> None:
+        sc = scenario
+        self.formation, self.avoidance, self.estimator, self.d = sc.formation, sc.avoidance, sc.estimator, sc.d
+        # The semi-implicit step (bracketed Newton per robot and axis) is solved robot by robot by
+        # the per-robot form's own functions, on the same numbers: exact by construction.
+        self.semi_implicit = sc.discretisation == "semi-implicit"
+        self._gains = ControlParameters(sc.formation, sc.avoidance, sc.estimator, sc.d, semi_implicit=True)
+        self.feedforward = sc.tracking == "feedforward"
+        if self.feedforward:  # eq. (obs)'s links: the upstream neighbours (oriented) or all, then the leader
+            from fxswarm.core.observer import observer_weights
+
+            obs = observer_weights(sc.a, sc.b, sc.observer_graph)
+            n = len(slots)
+            o_slots, o_weights, o_valid = np.full(slots.shape, n), np.zeros(slots.shape), np.zeros(slots.shape, bool)
+            for i in range(n):
+                ids = [int(j) for j, ok in zip(slots[i], valid[i]) if ok and j < n and obs[i, j] > 0]
+                ws = [float(obs[i, j]) for j in ids]
+                if sc.b[i] > 0:
+                    ids.append(n)
+                    ws.append(float(sc.b[i]))
+                o_slots[i, :len(ids)], o_weights[i, :len(ws)], o_valid[i, :len(ids)] = ids, ws, True
+            self.observer, self._observer = sc.observer, (o_slots, o_weights, o_valid)
+        self.slots, self.weights, self.valid = slots, weights, valid
+        self.pairwise = sc.estimator.power != "aggregate"
+        # per slot: the robots that have a row there (all of them for the first slots, typically)
+        self._rows = [None if valid[:, s].all() else np.flatnonzero(valid[:, s]) for s in range(slots.shape[1])]
+        # Pairwise powers once per link: robot i's |ph_i - ph_j| is robot j's |ph_j - ph_i|, the
+        # same float (IEEE subtraction is antisymmetric), so its powers are the same too. Table of
+        # |differences|: the undirected links (i < j), then each pinned robot's to the leader.
+        n = len(slots)
+        i_idx, s_idx = np.nonzero(valid)
+        j_idx = slots[i_idx, s_idx]
+        robot = j_idx < n
+        lo, hi = np.minimum(i_idx, j_idx)[robot], np.maximum(i_idx, j_idx)[robot]
+        links, inverse = np.unique(lo * n + hi, return_inverse=True)
+        self._link_i, self._link_j = links // n, links % n
+        self._pinned = i_idx[~robot]
+        table = np.zeros(slots.shape, dtype=np.intp)
+        table[i_idx[robot], s_idx[robot]] = inverse
+        table[i_idx[~robot], s_idx[~robot]] = len(links) + np.arange(len(self._pinned))
+        self._table = table
+
+    def estimate_rates(self, ph: np.ndarray, p0: np.ndarray, dt: float = 0.0,
+                       vh: np.ndarray | None = None) -> np.ndarray:
+        """``dph/dt`` of every robot, (n, 3): eq. (11), as :func:`fxswarm.core.control.estimator_rate`
+        (eq. (11ff) with the observed leader velocities ``vh``: added after, as there); under the
+        semi-implicit step, :func:`fxswarm.core.control.estimator_rate_step` robot by robot."""
+        if self.semi_implicit:
+            src = np.concatenate([ph, p0.reshape(1, 3)]).tolist()
+            phs, vhs = ph.tolist(), (None if vh is None else vh.tolist())
+            out = []
+            for i, (slots, weights, valid) in enumerate(zip(self.slots.tolist(), self.weights.tolist(),
+                                                            self.valid.tolist())):
+                rows = [src[j] for j, ok in zip(slots, valid) if ok]
+                ws = [w for w, ok in zip(weights, valid) if ok]
+                out.append(estimator_rate_step(phs[i], rows, ws, self._gains, dt, None if vhs is None else vhs[i]))
+            return np.array(out, dtype=float).reshape(-1, 3)
+        rates = self._explicit_rates(ph, p0)
+        return rates if vh is None else rates + vh  # eq. (11ff)
+
+    def _explicit_rates(self, ph: np.ndarray, p0: np.ndarray) -> np.ndarray:
+        g = self.estimator
+        a1, a2 = g.r3 / g.r4, g.r5 / g.r6
+        n = len(ph)
+        src = np.concatenate([ph, p0.reshape(1, 3)])
+        P, Q, E = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+        if self.pairwise:  # |d| ** a of every link and leader row, each computed once
+            ad = np.abs(np.concatenate([ph[self._link_i] - ph[self._link_j], ph[self._pinned] - p0]))
+            nz = ad != 0.0
+            pow1, pow2 = np.zeros_like(ad), np.zeros_like(ad)
+            pow1[nz] = powers(ad[nz], a1)
+            pow2[nz] = powers(ad[nz], a2)
+        for s, rows in enumerate(self._rows):
+            if rows is None:
+                X, Y, W, at = ph, src[self.slots[:, s]], self.weights[:, s, None], self._table[:, s]
+            else:
+                X, Y, W, at = ph[rows], src[self.slots[rows, s]], self.weights[rows, s, None], self._table[rows, s]
+            D = X - Y
+            if rows is None:
+                E = E + W * D
+            else:
+                E[rows] = E[rows] + W * D
+            if self.pairwise:  # w * sig(d, a) where d != 0, added in the same order
+                nz = D != 0.0
+                if rows is None:
+                    P = np.where(nz, P + np.copysign(W * pow1[at], D), P)
+                    Q = np.where(nz, Q + np.copysign(W * pow2[at], D), Q)
+                else:
+                    P[rows] = np.where(nz, P[rows] + np.copysign(W * pow1[at], D), P[rows])
+                    Q[rows] = np.where(nz, Q[rows] + np.copysign(W * pow2[at], D), Q[rows])
+        if not self.pairwise:
+            nz = E != 0.0
+            e = E[nz]
+            ad = np.abs(e)
+            P[nz] = np.copysign(powers(ad, a1), e)
+            Q[nz] = np.copysign(powers(ad, a2), e)
+        sign = np.where(E > 0.0, g.K3, np.where(E < 0.0, -g.K3, 0.0))
+        return -g.K1 * P - g.K2 * Q - sign
+
+    def observer_rates(self, vh: np.ndarray, v0: np.ndarray) -> np.ndarray:
+        """``dvh/dt`` of every robot, (n, 3): eq. (obs), as
+        :func:`fxswarm.core.observer.velocity_observer_rate` (``tracking = "feedforward"``)."""
+        g = self.observer
+        a1, a2 = g.r3 / g.r4, g.r5 / g.r6
+        pairwise = g.power != "aggregate"
+        slots, weights, valid = self._observer
+        src = np.concatenate([vh, v0.reshape(1, 3)])
+        n = len(vh)
+        P, Q, E = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+        for s in range(slots.shape[1]):
+            rows = np.flatnonzero(valid[:, s])
+            if not len(rows):
+                continue
+            D = vh[rows] - src[slots[rows, s]]
+            W = weights[rows, s, None]
+            E[rows] = E[rows] + W * D
+            if pairwise:
+                nz = D != 0.0
+                r, ax = np.nonzero(nz)
+                ad = np.abs(D[r, ax])
+                w = W[r, 0]
+                at = (rows[r], ax)
+                P[at] = P[at] + np.copysign(w * powers(ad, a1), D[r, ax])
+                Q[at] = Q[at] + np.copysign(w * powers(ad, a2), D[r, ax])
+        if not pairwise:
+            nz = E != 0.0
+            e = E[nz]
+            P[nz] = np.copysign(powers(np.abs(e), a1), e)
+            Q[nz] = np.copysign(powers(np.abs(e), a2), e)
+        sign = np.where(E > 0.0, 1.0, np.where(E < 0.0, -1.0, 0.0))
+        return -g.K1 * P - g.K2 * Q - g.K3 * sign  # eq. (obs)
+
+    @staticmethod
+    def task_rates(x: np.ndarray, g) -> np.ndarray:
+        """:func:`fxswarm.core.control.task_rate` of each element of ``x``."""
+        pos = x > 0.0
+        if pos.all():
+            return g.lam * powers(g.b1 * powers(x, g.r1) + g.b2 * powers(x, g.r2), g.r0)
+        out = np.zeros(len(x))
+        xp = x[pos]
+        out[pos] = g.lam * powers(g.b1 * powers(xp, g.r1) + g.b2 * powers(xp, g.r2), g.r0)
+        return out
+
+    def velocities(self, p, ph, dph, offset, offset_rate, po, vo, sensed,
+                   reference: np.ndarray | None = None, dt: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """``(v, avoid_active)``: eq. (v2) (following ``reference``, the observed leader velocity,
+        instead of ``dph`` when given: eq. (v2ff)) merged with eq. (v1) by eq. (v) inside the
+        repulsive zone, as :func:`fxswarm.core.control.behaviour_velocity` (no speed limit).
+        ``sensed``: (n,) whether the robot senses an object (``po``, ``vo`` rows are ignored where not)."""
+        e = p - ph - offset  # eq. (ctbf)
+        ff = (dph if reference is None else reference) + offset_rate
+        e2 = _dot(e, e)
+        big = ~(e2 < EPS * EPS)
+        if self.semi_implicit:  # robot by robot, as behaviour_velocity (the estimate's own rate, no reference)
+            g = self.formation
+            v = np.array([formation_velocity_semi_implicit(ei, di, ri, g, dt) for ei, di, ri in
+                          zip(e.tolist(), dph.tolist(), offset_rate.tolist())], dtype=float).reshape(-1, 3)
+        elif big.all():  # the usual case: no robot exactly on its slot
+            c = -self.task_rates(0.5 * e2, self.formation) + _dot(e, ff)
+            v = e / e2[:, None] * c[:, None]  # eq. (v2)
+        else:
+            v = ff.copy()
+            eb, e2b, ffb = e[big], e2[big], ff[big]
+            c = -self.task_rates(0.5 * e2b, self.formation) + _dot(eb, ffb)
+            v[big] = eb / e2b[:, None] * c[:, None]  # eq. (v2)
+        d = self.d
+        u = p - po
+        uu = _dot(u, u)
+        active = sensed & (0.5 * d * d - 0.5 * uu > 0.0)  # eq. (2), as in_repulsive_zone
+        if active.any():
+            ua, u2, voa, vf = u[active], uu[active], vo[active], v[active]
+            rate = self.task_rates(0.5 * d * d - 0.5 * u2, self.avoidance)
+            coincident = u2 < EPS * EPS
+            with np.errstate(divide="ignore", invalid="ignore"):  # coincident rows: replaced below
+                v_io = ua / u2[:, None] * (rate + _dot(ua, voa))[:, None]  # eq. (v1)
+            push = np.array(COINCIDENT_PUSH_DIRECTION)
+            if coincident.any():
+                v_io[coincident] = push * rate[coincident, None] / d
+                ua = ua.copy()
+                ua[coincident] = push
+                u2 = np.where(coincident, 1.0, u2)
+            s = _dot(ua, vf) / u2
+            v[active] = v_io + vf - ua * s[:, None]  # eq. (v)
+        return v, active
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise ``a . b`` of (n, 3) arrays, summed left to right as :func:`fxswarm.core.control.dot3`."""
+    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
+
+
+#: The law API's batch hook (fxswarm.core.laws): a law class's ``batch`` builds its batch form.
+BehaviouralLaw.batch = BehaviouralBatch

@@ -27,6 +27,7 @@ from fxswarm.core.laws import LawError, make_law, resolve_law
 from fxswarm.core.paper_law import BUILTIN_LAWS, FAMILIES, builtin_name, family_gains, split_builtin
 from fxswarm.core.observer import DEFAULT_OBSERVER_GAINS, OBSERVER_GRAPHS, TRACKINGS, max_acceleration_inf
 from fxswarm.core.resilience import RESILIENCE, leader_reach
+from fxswarm.core.swarm import expand as expand_swarm
 from fxswarm.core.graph import TOPOLOGIES, adjacency, h_matrix, topology_edges, unreached_robots
 
 
@@ -82,6 +83,7 @@ class Scenario:
     law_params: dict = field(repr=False, default_factory=dict)  # [controller.params], handed to the law
     law_folder: str | None = None  # the scenario's folder: where a law module beside it is imported from
     world: "WorldSettings | None" = None  # [world] and the robots' drive keys; None: the paper's ideal world
+    swarm: dict | None = field(repr=False, default=None)  # the [swarm] table as written (raw holds its expansion)
 
     @property
     def n(self) -> int:
@@ -697,6 +699,8 @@ def parse(data: dict, source: str = "<scenario>", folder: str | None = None, *, 
     """Validate a parsed TOML document into a :class:`Scenario`. ``folder``: where a law module
     named ``module:Class`` is looked for first (default: the folder of ``source``, if a file);
     ``check_law=False``: the law is not imported (for an observer, which flies nothing)."""
+    swarm = data.get("swarm") if isinstance(data.get("swarm"), dict) else None
+    data = expand_swarm(data, source, folder if folder is not None else _folder_of(source))  # [swarm] -> robots
     top = _Fields(source, data)
     top.check_known({"scenario", "gains", "estimator", "graph", "leader", "formation", "robots",
                      "obstacles", "faults", "controller", "logging", "zenoh", "ros2", "world"})
@@ -716,6 +720,7 @@ def parse(data: dict, source: str = "<scenario>", folder: str | None = None, *, 
         ros2=_ros2(top.table_at("ros2")),
         law_folder=folder if folder is not None else _folder_of(source),
         world=_world(top.table_at("world"), robot_tables, robots, v_max, d, leader, duration),
+        swarm=swarm,
     )
     if check_law:
         _law(scenario, top.table_at("controller"))

@@ -22,8 +22,26 @@ from fxswarm.logger.style import robot_hex  # noqa: E402
 DPI = 110
 
 
+#: Above this many robots a figure shows the swarm's spread, not a line and a legend entry per robot.
+MANY_ROBOTS = 24
+
+
 def _per_robot(ax, t: np.ndarray, values: np.ndarray, label: str = "robot {}") -> None:
-    for i in range(values.shape[1]):
+    n = values.shape[1]
+    if n > MANY_ROBOTS:  # a thousand lines are one blot: the band, the median and the worst
+        import warnings
+
+        with warnings.catch_warnings():  # a tick where no robot has a value (inf: nothing sensed)
+            warnings.simplefilter("ignore", RuntimeWarning)
+            lo, q10, med, q90, hi = np.nanpercentile(values, [0, 10, 50, 90, 100], axis=1)
+            peak = np.nanmax(values, axis=0)
+        ax.fill_between(t, lo, hi, color="#4e79a7", alpha=0.15, lw=0, label=f"all {n} robots (min to max)")
+        ax.fill_between(t, q10, q90, color="#4e79a7", alpha=0.35, lw=0, label="10 % to 90 % of robots")
+        ax.plot(t, med, color="#4e79a7", lw=1.4, label="median robot")
+        worst = int(np.nanargmax(peak)) if np.isfinite(peak).any() else 0
+        ax.plot(t, values[:, worst], color="#e15759", lw=1.0, label=f"robot {worst + 1} (largest)")
+        return
+    for i in range(n):
         ax.plot(t, values[:, i], color=robot_hex(i), lw=1.2, label=label.format(i + 1))
 
 
@@ -89,7 +107,15 @@ def trajectories_3d(traj: dict, out: Path, d: float, law: str | None = None) -> 
     p, p0, obstacles = traj["p"], traj["p0"], traj["obstacles"]
     fig = plt.figure(figsize=(7.5, 7))
     ax = fig.add_subplot(projection="3d")
-    for i in range(p.shape[1]):
+    n = p.shape[1]
+    if n > MANY_ROBOTS:  # thin paths of up to 200 robots, one legend entry; every start and end
+        step = -(-n // 200)
+        for i in range(0, n, step):
+            ax.plot(p[:, i, 0], p[:, i, 1], p[:, i, 2], color=robot_hex(i), lw=0.4, alpha=0.5,
+                    label=(f"{n} robots" if step == 1 else f"every {step}th robot of {n}") if i == 0 else None)
+        ax.scatter(*p[0].T, color="0.4", marker="o", s=4, label="start")
+        ax.scatter(*p[-1].T, color="k", marker="^", s=6, label="end")
+    for i in range(n if n <= MANY_ROBOTS else 0):
         ax.plot(p[:, i, 0], p[:, i, 1], p[:, i, 2], color=robot_hex(i), lw=1.3, label=f"robot {i + 1}")
         ax.scatter(*p[0, i], color=robot_hex(i), marker="o", s=18)
         ax.scatter(*p[-1, i], color=robot_hex(i), marker="^", s=28)

@@ -102,7 +102,7 @@ def run_case(table: dict, source: str, faults: tuple[str, ...], criteria: dict) 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ScenarioWarning)
             sc = parse(table, source)
-        summary = Simulation(sc, resolve(sc, list(faults))).run()
+        summary = Simulation(sc, resolve(sc, list(faults)), path="auto").run()  # as fxswarm sim: batch when it can
         result = {"status": "done", "error": None} | outcome(summary, Criteria(**criteria))
     except Exception as exc:  # a law or a run that raises is a result, not the campaign's end
         result = {"status": "error", "error": f"{type(exc).__name__}: {exc}", "success": False, "failed": [],

@@ -196,6 +196,13 @@ def make_plan(config: str, base: Scenario, out: Path, templates: list[str], axes
             cell = {a.name: a.values[k] for a, k in zip(axes, combo)}
             texts = {a.name: a.texts[k] for a, k in zip(axes, combo)}
             table = copy.deepcopy(with_law)
+            if any(a.scenario_key[0] == "swarm" for a in scenario_axes):
+                if base.swarm is None:
+                    raise CampaignError(f"--grid {next(a.name for a in scenario_axes if a.scenario_key[0] == 'swarm')}: "
+                                        f"{config} has no [swarm] table (its robots are listed)")
+                # a generated swarm: the cell's [swarm] table, expanded when the run parses it
+                table = {k: v for k, v in table.items() if k not in ("robots", "graph")}
+                table["swarm"] = copy.deepcopy(base.swarm)
             for a in scenario_axes:
                 section, key = a.scenario_key
                 table.setdefault(section, {})

@@ -132,7 +132,7 @@ def run_case(raw: dict, source: str, variant: str, scale: float, folder: str | N
         warnings.simplefilter("ignore", ScenarioWarning)  # the parent reports the base scenario's warnings
         sc = parse_case(raw, source, folder)
     start = time.perf_counter()
-    sim = Simulation(sc)
+    sim = Simulation(sc, path="auto")  # the batch path when it takes the case: the same trajectory, faster
     summary = sim.run()
     traj = sim.trajectory()
     wall = time.perf_counter() - start

@@ -52,8 +52,9 @@ def per_receiver(links: dict[str, dict[str, int]]) -> dict[str, dict]:
 def test_the_simulator_summary_is_the_builders_with_its_own_facts(lossy_run):
     sc, plan, sim, summary = lossy_run
     assert COMMON_KEYS <= set(summary) and FAULT_KEYS <= set(summary["faults"])
-    assert set(summary) - COMMON_KEYS == {"counters", "speed_limited_ticks"}  # the simulator's own facts
-    runner = {"counters": summary["counters"], "speed_limited_ticks": summary["speed_limited_ticks"]}
+    # the simulator's own facts (path: which path stepped it, fxswarm.launch.batch)
+    assert set(summary) - COMMON_KEYS == {"counters", "speed_limited_ticks", "path", "path_reason"}
+    runner = {k: summary[k] for k in ("counters", "speed_limited_ticks", "path", "path_reason")}
     again = build_summary(sc, sim.trajectory(), plan, wall_s=summary["wall_s"], world=sim.world,
                           links=sim.faults.link_counts(), restarts=sim.faults.restarts(), runner=runner)
     assert json.dumps(again) == json.dumps(summary)  # same keys, same values, same order

@@ -1,0 +1,167 @@
+"""Nearest object among thousands of robots without an n x n matrix: a KD-tree finds each
+robot's candidates, the world's own distance formula decides among them.
+
+:func:`nearest_objects` in the world (world/node.py) computes every robot-object distance,
+n x (n + m) of them: 800 MB a tick at 10 000 robots. This gives the same answer (the same
+distances, bit for bit, and the same tie rule: among equally near objects the first of
+``[obstacles..., robots by id...]``) from a KD-tree (scipy.spatial.cKDTree) over the robots:
+it proposes each robot's ``k`` nearest others, their distances are computed with the world's
+formula (``sqrt(einsum)`` on the differences, the same per element whatever the array's
+length), and a robot whose candidates might miss a tie (its k-th candidate no farther than its
+best, within rounding) is decided over all objects, as the world does.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Robots' candidates per query: the nearest other robot, and slack for ties and rounding.
+CANDIDATES = 4
+#: cKDTree's distances and the world's may differ in the last bits: a candidate set is
+#: trusted only if its farthest is farther than the best by more than this (relative).
+ROUNDING = 1e-9
+
+
+def distances(p: np.ndarray, objects: np.ndarray) -> np.ndarray:
+    """``|p_i - objects_ij|`` for p (n, 3) and objects (n, c, 3): the world's formula."""
+    diff = p[:, None, :] - objects
+    return np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
+
+
+def have_tree() -> bool:
+    """Whether scipy (the ``scale`` extra) is installed."""
+    try:
+        import scipy.spatial  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def nearest_objects_blocked(p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, obstacle_v: np.ndarray,
+                            block: int = 256):
+    """As ``world.node.nearest_objects``, the same computation a block of robots at a time: the
+    same answer with ``block`` x (n + m) distances in memory, not n x (n + m) (without scipy)."""
+    n, m = len(p), len(obstacles)
+    objects = np.concatenate([obstacles, p])
+    object_v = np.concatenate([obstacle_v, v])
+    choice, best, obstacle_dist = np.zeros(n, dtype=np.intp), np.zeros(n), np.full(n, np.inf)
+    for start in range(0, n, block):
+        rows = np.arange(start, min(n, start + block))
+        diff = p[rows, None, :] - objects[None, :, :]
+        dist = np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
+        dist[rows - start, m + rows] = np.inf
+        if m:
+            obstacle_dist[rows] = dist[:, :m].min(axis=1)
+        k = dist.argmin(axis=1)
+        choice[rows], best[rows] = k, dist[rows - start, k]
+    return objects[choice], object_v[choice], best, choice < m, obstacle_dist
+
+
+def nearest_objects_tree(p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, obstacle_v: np.ndarray):
+    """As ``world.node.nearest_objects`` (same returns, same values) for n > CANDIDATES robots."""
+    from scipy.spatial import cKDTree  # only for large swarms: small ones never import scipy
+
+    n, m = len(p), len(obstacles)
+    objects = np.concatenate([obstacles, p])
+    object_v = np.concatenate([obstacle_v, v])
+    own = np.arange(n)
+    if m:
+        obstacle_all = distances(p, np.broadcast_to(obstacles, (n, m, 3)))
+        obstacle_dist = obstacle_all.min(axis=1)
+    else:
+        obstacle_all, obstacle_dist = np.zeros((n, 0)), np.full(n, np.inf)
+    tree = cKDTree(p)
+    choice, best = np.zeros(n, dtype=np.intp), np.zeros(n)
+    rows = own
+    for k in (CANDIDATES + 1, 4 * CANDIDATES + 1):  # the robot itself is among its own nearest
+        k = min(k, n)
+        _, idx = tree.query(p[rows], k=k)
+        cand = np.concatenate([np.broadcast_to(np.arange(m), (len(rows), m)), m + idx], axis=1)
+        dist = np.concatenate([obstacle_all[rows], distances(p[rows], p[idx])], axis=1)
+        dist[cand == m + rows[:, None]] = np.inf  # a robot is not its own nearest object
+        row_best = dist.min(axis=1)
+        # trusted: the farthest proposed robot is clearly farther than the best, so no robot
+        # outside the proposals can be as near (the tree's distance to them is at least that far)
+        trusted = dist[:, m:].max(axis=1, initial=-np.inf, where=np.isfinite(dist[:, m:])) \
+            > row_best * (1.0 + ROUNDING) + 1e-300
+        if k == n:
+            trusted[:] = True  # every robot was proposed
+        # the first object (lowest index) among the nearest: the world's argmin over [obstacles, robots]
+        key = np.where(dist == row_best[:, None], cand, np.iinfo(np.intp).max)
+        choice[rows], best[rows] = key.min(axis=1), row_best
+        rows = rows[~trusted]
+        if not len(rows):
+            break
+    for i in rows:  # rare (many robots equally near): decide over every object, as the world does
+        row = distances(p[i:i + 1], objects[None, :, :])[0]
+        row[m + i] = np.inf
+        choice[i] = int(row.argmin())
+        best[i] = row[choice[i]]
+    return objects[choice], object_v[choice], best, choice < m, obstacle_dist
+
+
+class NearestCache:
+    """:func:`nearest_objects_tree` with the tree's candidates kept for many ticks (Verlet lists).
+
+    At a rebuild each robot gets its ``CACHED`` nearest other robots from a KD-tree, and the
+    distance ``R_i`` of the farthest of them: every other robot was at least ``R_i`` away. At a
+    later tick, with ``delta_i`` how far robot i has moved since and ``M`` the most any robot has,
+    a robot outside the list is still at least ``R_i - delta_i - M`` away; a robot whose nearest
+    candidate (or obstacle) is closer than that, with a margin for rounding, is decided by its
+    list alone, with the world's own distances and tie rule. The others are decided over every
+    object (a few), or, past :data:`REBUILD_SHARE` of the robots, the lists are built again. The
+    answer is the dense one, bit for bit (tests/unit/test_nearest.py).
+    """
+
+    CACHED = 8  # a lattice's 4 equally near neighbours and the next ring: margin to move before a rebuild
+    REBUILD_SHARE = 0.01
+
+    def __init__(self) -> None:
+        self.p0: np.ndarray | None = None
+        self.idx: np.ndarray | None = None
+        self.reach: np.ndarray | None = None
+        self.rebuilds = 0
+
+    def _rebuild(self, p: np.ndarray) -> None:
+        from scipy.spatial import cKDTree
+
+        k = min(self.CACHED + 1, len(p))
+        far, idx = cKDTree(p).query(p, k=k)
+        self.p0, self.idx = p.copy(), idx
+        # every robot not listed was at least this far (the tree's distances, less a rounding margin)
+        self.reach = far[:, -1] * (1.0 - ROUNDING) if k < len(p) else np.full(len(p), np.inf)
+        self.rebuilds += 1
+
+    def __call__(self, p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, obstacle_v: np.ndarray):
+        n, m = len(p), len(obstacles)
+        if self.p0 is None or self.p0.shape != p.shape:
+            self._rebuild(p)
+        moved = p - self.p0
+        delta = np.sqrt(moved[:, 0] * moved[:, 0] + moved[:, 1] * moved[:, 1] + moved[:, 2] * moved[:, 2])
+        bound = self.reach - delta - delta.max()  # the nearest any unlisted robot can be now
+        objects = np.concatenate([obstacles, p])
+        object_v = np.concatenate([obstacle_v, v])
+        idx = self.idx
+        own = np.arange(n)
+        if m:
+            obstacle_all = distances(p, np.broadcast_to(obstacles, (n, m, 3)))
+            obstacle_dist = obstacle_all.min(axis=1)
+        else:
+            obstacle_all, obstacle_dist = np.zeros((n, 0)), np.full(n, np.inf)
+        cand = np.concatenate([np.broadcast_to(np.arange(m), (n, m)), m + idx], axis=1)
+        dist = np.concatenate([obstacle_all, distances(p, p[idx])], axis=1)
+        dist[cand == m + own[:, None]] = np.inf  # a robot is not its own nearest object
+        best = dist.min(axis=1)
+        decided = best * (1.0 + ROUNDING) + 1e-300 < bound
+        undecided = np.flatnonzero(~decided)
+        if len(undecided) > self.REBUILD_SHARE * n + 1:
+            self._rebuild(p)
+            return self(p, v, obstacles, obstacle_v)
+        key = np.where(dist == best[:, None], cand, np.iinfo(np.intp).max)
+        choice = key.min(axis=1)
+        for i in undecided:  # decide over every object, as the world does
+            row = distances(p[i:i + 1], objects[None, :, :])[0]
+            row[m + i] = np.inf
+            choice[i] = int(row.argmin())
+            best[i] = row[choice[i]]
+        return objects[choice], object_v[choice], best, choice < m, obstacle_dist
