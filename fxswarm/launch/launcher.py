@@ -46,6 +46,7 @@ from fxswarm.faults.plan import CLI_HELP as FAULT_HELP
 from fxswarm.faults.plan import FaultPlan, dumps, plan_of, resolve
 from fxswarm.faults.process import ProcessSchedule
 from fxswarm.faults.summary import add_processes
+from fxswarm.launch.orphans import die_with_parent
 from fxswarm.runtime.numbers import non_negative_int, port, positive, positive_int, swarm_name
 from fxswarm.runtime.output import prepare_run_folder, read_process_counters, write_summary
 from fxswarm.runtime.process import CLOCKS, PARENT_ENV
@@ -355,9 +356,10 @@ class Swarm:
         if not self.secure:
             env.pop("FXSWARM_SECURE", None)  # a plain run's children must not turn secure from the environment
         with open(child.log_path, "ab") as log:
-            # A new session: Ctrl-C reaches the launcher only, which stops children in order.
+            # A new session: Ctrl-C reaches the launcher only, which stops children in order. The
+            # kernel ends each child if the launcher dies, SIGKILLed too: zenohd watches no parent.
             child.popen = subprocess.Popen(child.argv, stdin=subprocess.DEVNULL, stdout=log, stderr=log,
-                                           env=env, start_new_session=True)
+                                           env=env, start_new_session=True, preexec_fn=die_with_parent())
         child.stopped_by, child.reported = None, False
 
     # --- start -----------------------------------------------------------------------------

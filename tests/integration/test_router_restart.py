@@ -213,7 +213,7 @@ def test_fxswarm_run_restarts_a_crashed_router_says_so_and_exits_0(tmp_path):
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         wait_for_line(launcher, "processes up")
-        (router,) = [pid for pid, cmd in children_of(launcher.pid).items() if " router " in cmd]
+        (router,) = [pid for pid, cmd in children_of(launcher.pid).items() if is_router(cmd)]
         os.kill(router, signal.SIGKILL)
         out, err = launcher.communicate(timeout=300)
     finally:
@@ -224,6 +224,53 @@ def test_fxswarm_run_restarts_a_crashed_router_says_so_and_exits_0(tmp_path):
     assert f"router (pid {router}) died: killed by SIGKILL; started it again (restart 1 of at most 10)" in err, err
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["complete"] and summary["missed_ticks"] == 0 and summary["launcher"]["router_restarts"] == 1
+
+
+def is_router(cmd: str) -> bool:
+    """Whether a child's command line is the router's: `fxswarm router ...`, or zenohd (or its
+    stand-in) started on the configuration `fxswarm run` writes for it (`-c .../router.zenohd.json5`)."""
+    return " router " in cmd or "router.zenohd.json5" in cmd
+
+
+def test_a_router_started_by_fxswarm_run_dies_with_its_sigkilled_launcher(tmp_path, monkeypatch):
+    """zenohd watches no parent: the kernel ends it when its launcher dies (PR_SET_PDEATHSIG),
+    SIGKILLed too; the Python roles leave by themselves. Here with the token-less stand-in,
+    started as zenohd is (with FXSWARM_ZENOHD set, the real one, `make test-zenohd`)."""
+    import subprocess
+    import sys
+    import time
+
+    from fxswarm.testing import scenario_with
+
+    from support import PAPER_FAST, fxswarm_command
+    from test_runtime_shutdown import children_of, gone, wait_for_line
+
+    if not os.environ.get("FXSWARM_ZENOHD"):
+        monkeypatch.setenv("FXSWARM_ZENOHD", f"{sys.executable} tests/integration/tokenless_router.py")
+    config = scenario_with(PAPER_FAST, tmp_path, duration=600.0)  # still running when its launcher dies
+    launcher = subprocess.Popen(fxswarm_command("run", str(config), "--out", str(tmp_path / "run"), "--no-logger",
+                                                "--topology", "routed"),
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    children: dict[int, str] = {}
+    try:
+        wait_for_line(launcher, "processes up")
+        children = children_of(launcher.pid)
+        (router,) = [pid for pid, cmd in children.items() if is_router(cmd)]
+        assert "router.zenohd.json5" in children[router]  # started as zenohd is, not `fxswarm router`
+        os.kill(launcher.pid, signal.SIGKILL)  # the launcher alone: its children are in sessions of their own
+        launcher.wait()
+        end = time.monotonic() + 30.0  # the roles notice within their 0.1 s loop; the kernel tells zenohd at once
+        while time.monotonic() < end and not all(gone(pid) for pid in children):
+            time.sleep(0.05)
+        left = {pid: cmd for pid, cmd in children.items() if not gone(pid)}
+        assert not left, f"still running 30 s after their launcher was SIGKILLed: {left}"
+    finally:
+        for pid in children:
+            if not gone(pid):
+                os.kill(pid, signal.SIGKILL)
+        if launcher.poll() is None:
+            launcher.kill()
+            launcher.wait()
 
 
 def test_health_passes_while_the_router_cannot_be_reached_only_when_asked(tmp_path):
