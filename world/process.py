@@ -68,6 +68,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="lock-step: hold the tick of each planned restart ([[faults.processes]]) until the robot's "
                         "new process is up, so it lands at its time as in `fxswarm sim` (`fxswarm run` sets it: "
                         "its launcher does the restarts)")
+    p.add_argument("--finished-ok", action="store_true",
+                   help="exit 0 once the run has reached its end, even one flown alone (still said on the "
+                        "console and in summary.json's degraded): `fxswarm stack` sets it, as Docker Swarm "
+                        "restarts a task that exits non-zero, and a finished run must not start over")
     p.add_argument("--ros2", action="store_true",
                    help="a gateway to ROS 2 robots instead of the simulation (real time; needs fxswarm[ros2]; "
                         "the scenario's [ros2] table, ROS_DOMAIN_ID and CYCLONEDDS_URI; docs/ros2.md)")
@@ -300,8 +304,8 @@ def main(args: argparse.Namespace) -> int:
         if not world.done:  # a run cut short is not a success: stopped by a signal, say which (128 + n)
             signalled = proc.stop_reason in ("SIGTERM", "SIGINT")
             code = 128 + signal.Signals[proc.stop_reason].value if signalled else 1
-        elif say_degraded(world, proc.connectivity.report()):
-            code = ALONE_EXIT
+        elif say_degraded(world, proc.connectivity.report(), 0 if args.finished_ok else ALONE_EXIT):
+            code = 0 if args.finished_ok else ALONE_EXIT
     except BaseException:
         crashed = True
         raise
@@ -324,7 +328,7 @@ def main(args: argparse.Namespace) -> int:
     return code
 
 
-def say_degraded(world: WorldNode, outages: list[dict]) -> bool:
+def say_degraded(world: WorldNode, outages: list[dict], status: int = ALONE_EXIT) -> bool:
     """Say on the console how the run was degraded, if it was; return whether the world heard
     none of its robots at the end (it flew alone: no success, whatever ``complete`` says)."""
     degraded = world.degraded()
@@ -341,7 +345,8 @@ def say_degraded(world: WorldNode, outages: list[dict]) -> bool:
     print(f"fxswarm world: heard none of its {world.sc.n} robots from t = {world.unheard_since * world.sc.dt:.2f} s "
           f"to the end ({world.tick - world.unheard_since} of {world.tick} ticks flown alone"
           f"{', its router lost' if outages and outages[-1]['end'] is None else ''}): "
-          f"the run is not a success; exit status {ALONE_EXIT}", file=sys.stderr)
+          f"the run is not a success; exit status {status}"
+          f"{' (--finished-ok: the run reached its end)' if status == 0 else ''}", file=sys.stderr)
     return True
 
 

@@ -101,7 +101,8 @@ def role_command(role: str, swarm: str, run: str, extra: list[str] | None = None
 
 
 def world_extra(wait_for: list[str]) -> list[str]:
-    out = ["--tick-timeout", var("FXSWARM_TICK_TIMEOUT", "5"), "--wait-timeout", str(WAIT_TIMEOUT_S)]
+    # --finished-ok: a run that reached its end exits 0, so Swarm (on-failure) does not start it over.
+    out = ["--tick-timeout", var("FXSWARM_TICK_TIMEOUT", "5"), "--wait-timeout", str(WAIT_TIMEOUT_S), "--finished-ok"]
     for name in wait_for:
         out += ["--wait-for", name]
     return out
@@ -148,7 +149,7 @@ def stack_document(sc: Scenario, swarm: str, wait_for: list[str], plan: FaultPla
                 "replicas": replicas,
                 "endpoint_mode": "dnsrr",
                 # on-failure: a crashed or killed process comes back (a new task, the same slot);
-                # one that finished its run (exit 0) stays down.
+                # one that finished its run (exit 0; the world's even when degraded) stays down.
                 "restart_policy": {"condition": condition, "delay": "1s"},
             },
         }
