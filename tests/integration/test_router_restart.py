@@ -113,9 +113,21 @@ def test_realtime_run_goes_on_through_a_router_restart_and_recovers_formation(la
     assert summary["complete"] is True, summary
     err = formation_errors(load_trajectory(swarm.out)).max(axis=1)
     t = np.arange(len(err)) * swarm.scenario.dt
-    # The outage showed (robots stopped, the leader went on), and the formation recovered: the
-    # final error within the bound real-time paper-fast meets without an outage.
-    assert err[(t > 10.0) & (t < 20.0)].max() > summary["formation_error_final_m"], "no outage seen"
+    from support import measured
+
+    (outage,) = summary["router_outages"]
+    measured("router_restart_realtime", load1=os.getloadavg()[0], before_m=err[(t > 8.0) & (t < 10.0)].max(),
+             outage_max_m=err[(t > 10.0) & (t < 20.0)].max(), final_m=summary["formation_error_final_m"],
+             last_2s_m=err[t > t[-1] - 2.0].max(), outage_ticks=outage["ticks"],
+             held=summary["degraded"]["ticks"])
+    # The outage showed: the world held robots it could not hear at zero (none without an outage:
+    # a robot is held only after silent_hold), and meanwhile the leader went on, so the formation
+    # error grew past where it was before the kill (none of that without an outage: by 8 s the
+    # formation is converging). Measured (3 runs of issue 40 at load average 12-19 (the machine shared with other test runs)): held 251-836 ticks; error before the kill
+    # 1.56-1.59 m, during the outage up to 4.3-361 m (an outage of 299-877 ticks).
+    assert summary["degraded"]["ticks"] > 0 and summary["degraded"]["robots"] == [1, 2, 3, 4, 5, 6], summary["degraded"]
+    assert err[(t > 10.0) & (t < 20.0)].max() > err[(t > 8.0) & (t < 10.0)].max(), "no outage seen"
+    # And the formation recovered: the final error 0.029-0.126 m in those runs (0.25: 2x the worst).
     assert summary["formation_error_final_m"] <= 0.25, summary["formation_error_final_m"]
     # The world reports the outage: one, after the kill, ended (the router came back), ticks run meanwhile.
     (outage,) = summary["router_outages"]
@@ -179,7 +191,8 @@ def test_secure_failover_gets_nothing_through_a_rogue_router(tmp_path, protected
             assert time.monotonic() < end, "the client never linked to the next router it lists"
             time.sleep(0.05)
         # Put what the world puts, and watch for forged commands: the rogue forges 4 a second.
-        end = time.monotonic() + (4.0 if protected else 30.0)
+        linked = time.monotonic()
+        end = linked + (4.0 if protected else 30.0)
         while time.monotonic() < end and (protected or not landed):
             session.put(f"fxswarm/{swarm}/world/sense/1", b"not for a rogue")
             time.sleep(0.05)
@@ -191,8 +204,9 @@ def test_secure_failover_gets_nothing_through_a_rogue_router(tmp_path, protected
         report = json.loads(rogue.stdout.readlines()[-1])
         rogue.wait(10)
         real.wait(10)
-    if protected:  # it forged all along the 4 s, and none landed; it heard none of the client's puts
-        assert report["forged"] >= 4 and landed == [] and report["heard"] == 0, (len(landed), report)
+    if protected:  # it forged all along the 4 s after the failover, and none landed; it heard none of the client's puts
+        during = [t for t in report["forged_at"] if linked <= t <= end]
+        assert len(during) >= 4 and landed == [] and report["heard"] == 0, (len(during), len(landed), report)
     else:
         assert landed and report["heard"] > 0, (len(landed), report)
 

@@ -77,6 +77,6 @@ def test_losing_every_router_is_said_once_and_its_return_too_with_the_ticks_in_b
 
 def test_a_mesh_peer_that_never_had_a_link_is_not_lost():
     info, said = FakeInfo(), []
-    Connectivity(SimpleNamespace(info=info), "fxswarm agent 1", say=said.append)
+    watch = Connectivity(SimpleNamespace(info=info), "fxswarm agent 1", say=said.append)
     info.handler(event(zenoh.SampleKind.DELETE, uuid.uuid4().hex, "peer"))
-    assert not said
+    assert not said and not watch.lost and watch.report() == []
