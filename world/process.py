@@ -301,11 +301,7 @@ def main(args: argparse.Namespace) -> int:
                                      processes=processes, router_outages=proc.connectivity.report())
 
             summary_of = summarise
-        if not world.done:  # a run cut short is not a success: stopped by a signal, say which (128 + n)
-            signalled = proc.stop_reason in ("SIGTERM", "SIGINT")
-            code = 128 + signal.Signals[proc.stop_reason].value if signalled else 1
-        elif say_degraded(world, proc.connectivity.report(), 0 if args.finished_ok else ALONE_EXIT):
-            code = 0 if args.finished_ok else ALONE_EXIT
+        code = exit_status(world, proc.stop_reason, proc.connectivity.report(), args.finished_ok)
     except BaseException:
         crashed = True
         raise
@@ -326,6 +322,19 @@ def main(args: argparse.Namespace) -> int:
         finally:
             proc.close()  # always: an open session hangs the exit
     return code
+
+
+def exit_status(world: WorldNode, stop_reason: str, outages: list[dict], finished_ok: bool = False) -> int:
+    """The world's exit status at the end of its loop. A run cut short is not a success: stopped
+    by a signal, 128 + its number, else 1. A finished run is 0, or ``ALONE_EXIT`` if the world
+    flew alone at the end (said on the console either way), unless ``finished_ok``: `fxswarm stack`
+    sets it, as Docker Swarm restarts a task that exits non-zero."""
+    if not world.done:
+        signalled = stop_reason in ("SIGTERM", "SIGINT")
+        return 128 + signal.Signals[stop_reason].value if signalled else 1
+    if say_degraded(world, outages, 0 if finished_ok else ALONE_EXIT):
+        return 0 if finished_ok else ALONE_EXIT
+    return 0
 
 
 def say_degraded(world: WorldNode, outages: list[dict], status: int = ALONE_EXIT) -> bool:

@@ -105,7 +105,7 @@ def test_stack_file_one_scaled_agent_service_dnsrr_everywhere(tmp_path, name):
     world = services["world"]["command"]
     assert world[world.index("--wait-for") + 1] == "logger/0"
     # Restarted only on a crash before the end: a finished run exits 0 (--finished-ok, even flown
-    # alone), and Swarm restarts on failure only (test_router_lost.py runs the world so).
+    # alone: test_world_degraded.py), and Swarm restarts on failure only.
     assert services["world"]["deploy"]["restart_policy"]["condition"] == "on-failure"
     assert "--finished-ok" in world
     assert (tmp_path / "scenario.toml").read_text() == path.read_text()
