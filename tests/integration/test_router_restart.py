@@ -115,19 +115,18 @@ def test_realtime_run_goes_on_through_a_router_restart_and_recovers_formation(la
     t = np.arange(len(err)) * swarm.scenario.dt
     from support import measured
 
-    (outage,) = summary["router_outages"]
     measured("router_restart_realtime", load1=os.getloadavg()[0], before_m=err[(t > 8.0) & (t < 10.0)].max(),
              outage_max_m=err[(t > 10.0) & (t < 20.0)].max(), final_m=summary["formation_error_final_m"],
-             last_2s_m=err[t > t[-1] - 2.0].max(), outage_ticks=outage["ticks"],
+             last_2s_m=err[t > t[-1] - 2.0].max(), outage_ticks=sum(o["ticks"] for o in summary["router_outages"]),
              held=summary["degraded"]["ticks"])
-    # The outage showed: the world held robots it could not hear at zero (none without an outage:
-    # a robot is held only after silent_hold), and meanwhile the leader went on, so the formation
-    # error grew past where it was before the kill (none of that without an outage: by 8 s the
-    # formation is converging). Measured (3 runs of issue 40 at load average 12-19 (the machine shared with other test runs)): held 251-836 ticks; error before the kill
-    # 1.56-1.59 m, during the outage up to 4.3-361 m (an outage of 299-877 ticks).
+    # The outage showed: the world held robots it could not hear at zero. Without an outage it
+    # holds none (a robot is held only after silent_hold of silence): planted (no router kill),
+    # held 0 ticks and this fails. Measured (4 runs of issue 40 at load average 12-19): held
+    # 97-836 ticks over outages of 144-877 ticks. (The error's growth is no such check: without
+    # an outage the error between 10 and 20 s still exceeded the error before 10 s, 1.73 m
+    # against 1.58 m, as paper-fast's obstacles come.)
     assert summary["degraded"]["ticks"] > 0, summary["degraded"]
-    assert err[(t > 10.0) & (t < 20.0)].max() > err[(t > 8.0) & (t < 10.0)].max(), "no outage seen"
-    # And the formation recovered: the final error 0.029-0.126 m in those runs (0.25: 2x the worst).
+    # And the formation recovered: the final error 0.029-0.126 m in the 4 runs (0.25: 2x the worst).
     assert summary["formation_error_final_m"] <= 0.25, summary["formation_error_final_m"]
     # The world reports the outage: one, after the kill, ended (the router came back), ticks run meanwhile.
     (outage,) = summary["router_outages"]
