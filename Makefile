@@ -23,13 +23,17 @@ lint: $(STAMP)
 	$(PY) -m pip install --quiet --no-deps --no-build-isolation --target build/lint .
 	cd build/lint && ../../$(VENV)/bin/lint-imports ../../pyproject.toml
 
-# Every layer (tests/unit, tests/integration, tests/docker: pyproject's testpaths), slow ones too.
+# Every layer, slow ones too: tests/unit on two workers (pure tests, CPU-bound: pytest-xdist),
+# then tests/integration and tests/docker in one process (real-time runs must not share the CPUs
+# with each other). PYTEST_ARGS: more pytest options for both (.ci/run: --durations=10).
+PYTEST_ARGS ?=
 test: lint
-	$(PY) -m pytest
+	status=0; $(PY) -m pytest tests/unit -n 2 $(PYTEST_ARGS) || status=$$?; \
+	$(PY) -m pytest tests/integration tests/docker $(PYTEST_ARGS) || status=$$?; exit $$status
 
-# The quick layer: pure tests in one process, without the ones marked slow (minutes of simulation).
+# The quick layer: pure tests on two workers, without the ones marked slow (minutes of simulation).
 test-unit: $(STAMP)
-	$(PY) -m pytest tests/unit -m "not slow"
+	$(PY) -m pytest tests/unit -m "not slow" -n 2
 
 test-integration: $(STAMP)
 	$(PY) -m pytest tests/integration

@@ -24,11 +24,12 @@ import sys
 from fxswarm.agents.node import AgentNode
 from fxswarm.core import bus as topics
 from fxswarm.core.messages import Message, decode_carried
-from fxswarm.core.pacing import Pacer
+from fxswarm.core.pacing import Deadline, Pacer
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.plan import FaultPlan
 from fxswarm.runtime.process import RoleProcess, add_process_arguments, run_event_loop, run_periodic_loop, wrap_node
 from fxswarm.runtime.config import load_or_exit
+from fxswarm.runtime.liveness import REJOIN_S
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -47,6 +48,7 @@ class AgentProcess(RoleProcess):
         super().__init__(*args, **kwargs)
         self.last_tick: dict[tuple[str, int], int] = {}  # (role, sender) -> newest tick arrived
         self.neighbour_commands = {topics.command_topic(j) for j in self.sc.neighbours(self.ident)}
+        self.waiting_since: dict[tuple[str, int], Deadline] = {}  # (target, restarts due): for restarting()
 
     def deliver(self, topic: str, msg: Message) -> None:
         key = (msg.role, msg.sender)
@@ -76,9 +78,32 @@ class AgentProcess(RoleProcess):
         return super().reader_for(pattern)
 
     def act_past_the_gone(self) -> None:
-        """Lock-step: act now if all the robot still waits for are processes that are gone."""
+        """Lock-step: act now if all the robot still waits for are processes that are gone. A
+        sender whose planned restart is due by the current tick is waited for (as in ``fxswarm
+        sim``, where it is back at that tick) until its new process is up, at most ``REJOIN_S``."""
         gone = {"leader" if n == "leader/0" else n.replace("/", ":") for n in self.gone}
+        sense = self.core.sense
+        if gone and sense is not None:
+            gone -= self.restarting(sense.tick * self.sc.dt)
         self.publish(self.core.act_past_the_gone(gone))
+
+    def restarting(self, t: float) -> set[str]:
+        """Plan targets (``agent:<id>``, ``leader``) restarted by time ``t`` whose new process is
+        not up yet (its token has come up fewer times than its start and those restarts), and not
+        waited for longer than ``REJOIN_S`` already."""
+        due: dict[str, int] = {}
+        for f in self.plan.processes:
+            if f.action == "kill" and f.restart is not None and f.restart <= t + 1e-9:
+                due[f.target] = due.get(f.target, 0) + 1
+        out = set()
+        for target, restarts in due.items():
+            name = "leader/0" if target == "leader" else target.replace(":", "/")
+            if self.liveness.ups.get(name, 0) >= 1 + restarts:
+                continue
+            since = self.waiting_since.setdefault((target, restarts), Deadline(REJOIN_S, self.wall_clock))
+            if not since.passed():
+                out.add(target)
+        return out
 
 
 def main(args: argparse.Namespace) -> int:

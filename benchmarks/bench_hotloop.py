@@ -85,14 +85,19 @@ def main() -> int:
     clock = time.perf_counter
     per_tick = {role: round(len(h) / sc.ticks) for role, h in heard.items()}  # messages (the first ticks')
 
+    sent = {"n": 0}  # messages the nodes sent in the timed passes: that they did their work
+
     def take(role, node, topic: str, payload: bytes) -> float:
         """What ``role``'s process does with one message, in s."""
         start = clock()
         msg = readers[role].get(topic, decode)(payload)
         check_sender(topic, msg)
-        for _, m in node.handle(topic, msg):
+        out = node.handle(topic, msg)
+        for _, m in out:
             encode(m)
-        return clock() - start
+        spent = clock() - start
+        sent["n"] += len(out)
+        return spent
 
     def one_pass(role: str, cold: bool) -> float:
         node = AgentNode(sc, a.robot) if role == "agent" else WorldNode(sc)
@@ -130,7 +135,9 @@ def main() -> int:
     for role in ("agent", "world"):
         hot, cold = [], []
         for _ in range(a.repeat):  # alternately, so both see the same machine
+            sent["n"] = 0
             hot.append(one_pass(role, cold=False))
+            result[f"{role}_sent_per_tick"] = round(sent["n"] / sc.ticks, 3)  # the hot pass goes through every tick
             cold.append(one_pass(role, cold=True))
         for name, runs in ((f"{role}_us_per_tick", hot), (f"{role}_cold_us_per_tick", cold)):
             result[name] = {"median": round(statistics.median(runs), 1), "runs": [round(x, 1) for x in runs]}

@@ -11,8 +11,16 @@ from fxswarm.launch.launcher import free_port
 from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions
 from support import PAPER_FAST, RECORDED_S, record_in_process
 
-# On CI (CI=true) a skip fails unless .ci/run declared its prerequisite missing (docs/testing.md).
-from prerequisites import pytest_runtest_makereport  # noqa: F401  (a pytest hook)
+# On CI (CI=true) a skip, at collection too, fails unless .ci/run declared its prerequisite missing (docs/testing.md).
+from prerequisites import pytest_make_collect_report, pytest_runtest_makereport  # noqa: F401  (pytest hooks)
+
+
+def pytest_collection_modifyitems(items):
+    """A test that asks for the ROS 2 modules (fixtures ``ros2``, ``ros2_msgs``, which need
+    prerequisite ros2) carries its marker, as prerequisites.py lists tests by marker."""
+    for item in items:
+        if {"ros2", "ros2_msgs"} & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.ros2)
 
 
 @pytest.fixture

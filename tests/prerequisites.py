@@ -58,6 +58,12 @@ def _browser_problem() -> str | None:
     return None if shutil.which(binary) or Path(binary).is_file() else f"FXSWARM_CHROMIUM={binary}: no such program"
 
 
+def _ros2_problem() -> str | None:
+    import importlib.util
+
+    return None if importlib.util.find_spec("cyclonedds") else "Cyclone DDS (`cyclonedds`, the [ros2] extra) does not import"
+
+
 def _snapshot_problem() -> str | None:
     from fxswarm.report.snapshot import can_render
 
@@ -73,6 +79,8 @@ PREREQUISITES = {p.name: p for p in (
                  ".ci/install-browser.sh could not install it"),
     Prerequisite("snapshot", "snapshot", "FXSWARM_REQUIRE_SNAPSHOT", _snapshot_problem,
                  ".ci/install-snapshot-deps.sh could not install it"),
+    Prerequisite("ros2", "ros2", "FXSWARM_REQUIRE_ROS2", _ros2_problem,
+                 "`make .venv/.installed` installs it with .[dev]; it did not import"),
 )}
 
 
@@ -92,6 +100,21 @@ def require(name: str) -> None:
         unavailable(name, problem)
 
 
+def require_module(name: str) -> None:
+    """At a test module's top, for a module whose every test needs prerequisite ``name``: skip
+    the whole module at collection where it is missing (fail where its REQUIRE variable is 1).
+    Its reason starts like :func:`unavailable`'s, so on CI the collection guard
+    (:func:`pytest_make_collect_report`) lets it stand only where ``.ci/run`` declared it missing."""
+    p = PREREQUISITES[name]
+    problem = p.problem()
+    if problem is None:
+        return
+    if os.environ.get(p.require_env) == "1":
+        pytest.fail(f"{SKIP_PREFIX}{name} missing: {problem}; yet {p.require_env}=1: these tests must run here",
+                    pytrace=False)
+    pytest.skip(f"{SKIP_PREFIX}{name} missing: {problem}", allow_module_level=True)
+
+
 def declared_missing() -> set[str]:
     return {n.strip() for n in os.environ.get(CI_MISSING_ENV, "").split(",") if n.strip()}
 
@@ -107,16 +130,41 @@ def pytest_runtest_makereport(item, call):
     its prerequisite missing. An expected failure (xfail) is not a skip."""
     outcome = yield
     report = outcome.get_result()
-    if os.environ.get("CI", "").lower() not in ("true", "1") or not report.skipped or hasattr(report, "wasxfail"):
+    if not _on_ci() or not report.skipped or hasattr(report, "wasxfail"):
         return
     reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
     reason = reason.removeprefix("Skipped: ")
     if skip_allowed_on_ci(reason, declared_missing()):
         return
     report.outcome = "failed"
-    report.longrepr = (f"skipped on CI (CI=true): {reason}\n.ci/run did not declare this test's prerequisite "
-                       f"missing ({CI_MISSING_ENV}={os.environ.get(CI_MISSING_ENV, '')!r}), so a skip here "
-                       f"is a test that did not run. Install what it needs, or have .ci/run say why it cannot.")
+    report.longrepr = _ci_failure(reason)
+
+
+def _on_ci() -> bool:
+    return os.environ.get("CI", "").lower() in ("true", "1")
+
+
+def _ci_failure(reason: str) -> str:
+    return (f"skipped on CI (CI=true): {reason}\n.ci/run did not declare this test's prerequisite "
+            f"missing ({CI_MISSING_ENV}={os.environ.get(CI_MISSING_ENV, '')!r}), so a skip here "
+            f"is a test that did not run. Install what it needs, or have .ci/run say why it cannot.")
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_make_collect_report(collector):
+    """On CI, a skip at collection (a module-level ``pytest.importorskip`` or ``pytest.skip(...,
+    allow_module_level=True)``) is a collection error unless its prerequisite was declared missing:
+    such a skip drops every test of the module before :func:`pytest_runtest_makereport` sees one."""
+    outcome = yield
+    report = outcome.get_result()
+    if not _on_ci() or report.outcome != "skipped":
+        return
+    reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
+    reason = reason.removeprefix("Skipped: ")
+    if skip_allowed_on_ci(reason, declared_missing()):
+        return
+    report.outcome = "failed"
+    report.longrepr = _ci_failure(f"{collector.nodeid} skipped at collection: {reason}")
 
 
 def main(argv: list[str]) -> int:
@@ -152,14 +200,23 @@ def tests_marked(markers: list[str]) -> dict[str, list[str]]:
 
     class Collector:
         items: list = []
+        skipped: list = []  # (node id, reason) of the modules skipped whole at collection
 
         def pytest_collection_modifyitems(self, items) -> None:
             Collector.items = [(i.nodeid, {m.name for m in i.iter_markers()}) for i in items]
 
+        def pytest_collectreport(self, report) -> None:
+            if report.skipped:
+                reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
+                Collector.skipped.append((report.nodeid, reason.removeprefix("Skipped: ")))
+
     os.chdir(Path(__file__).resolve().parents[1])
     with contextlib.redirect_stdout(io.StringIO()):
         pytest.main(["--collect-only", "-q", "-p", "no:cacheprovider"], plugins=[Collector()])
-    return {m: [node for node, marks in Collector.items if m in marks] for m in markers}
+    # A marker is its prerequisite's name (PREREQUISITES), so a module skipped for it is counted too.
+    return {m: [node for node, marks in Collector.items if m in marks]
+            + [f"{node} (the whole module)" for node, reason in Collector.skipped
+               if reason.startswith(f"{SKIP_PREFIX}{m} missing:")] for m in markers}
 
 
 if __name__ == "__main__":

@@ -525,13 +525,15 @@ class RestartHold:
     """Lock-step under ``fxswarm run``: a robot's planned restart (``[[faults.processes]]`` kill
     with ``restart``) lands at its tick, as in ``fxswarm sim``, not whenever its new process is up.
 
-    The launcher restarts a process once the world's published state has passed the restart
-    time, and a new process takes seconds of wall time to come up (8 s at load 20), during which
-    a lock-step world used to tick on without it. So the world holds the first tick after that
-    state until the robot's token has come up once more than at the start for each restart due
-    (``ups``: :attr:`fxswarm.runtime.liveness.Liveness.ups`), at most ``limit_s`` s each; then it
-    asks again for that tick, so the new process hears it. A token that went and came back with
-    a router outage counts as up too: that restart then goes unheld, as before.
+    In lock-step the launcher restarts a process once the world's published state is one tick
+    before the restart time (:class:`fxswarm.faults.process.ProcessSchedule`), and a new process
+    takes seconds of wall time to come up (8 s at load 20). So the world holds the restart's own
+    tick (the first whose time is at or past it, as :class:`~fxswarm.faults.process.Mortal`
+    restarts in ``fxswarm sim``) until the robot's token has come up once more than at the
+    start for each restart due (``ups``: :attr:`fxswarm.runtime.liveness.Liveness.ups`), at most
+    ``limit_s`` s each; then it asks again for that tick, so the new process hears it. A token
+    that went and came back with a router outage counts as up too: that restart then goes
+    unheld, as before.
     """
 
     def __init__(self, plan_processes, ups: dict[str, int], dt: float, clock: WallClock, limit_s: float) -> None:
@@ -550,9 +552,9 @@ class RestartHold:
     def check(self, tick: int) -> tuple[bool, list[str]]:
         """At the current ``tick`` (whose previous state the launcher has seen): (hold it?,
         robots whose restart has just come up: ask again for this tick)."""
-        published_t = (tick - 1) * self.dt
+        t = tick * self.dt
         back: list[str] = []
-        while self.pending and self.pending[0][0] <= published_t + 1e-9:
+        while self.pending and self.pending[0][0] <= t + 1e-9:
             _, name, needed = self.pending[0]
             if self.ups.get(name, 0) >= needed:
                 back.append(name)

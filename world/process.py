@@ -68,6 +68,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="lock-step: hold the tick of each planned restart ([[faults.processes]]) until the robot's "
                         "new process is up, so it lands at its time as in `fxswarm sim` (`fxswarm run` sets it: "
                         "its launcher does the restarts)")
+    p.add_argument("--finished-ok", action="store_true",
+                   help="exit 0 once the run has reached its end, even one flown alone (still said on the "
+                        "console and in summary.json's degraded): `fxswarm stack` sets it, as Docker Swarm "
+                        "restarts a task that exits non-zero, and a finished run must not start over")
     p.add_argument("--ros2", action="store_true",
                    help="a gateway to ROS 2 robots instead of the simulation (real time; needs fxswarm[ros2]; "
                         "the scenario's [ros2] table, ROS_DOMAIN_ID and CYCLONEDDS_URI; docs/ros2.md)")
@@ -300,11 +304,7 @@ def main(args: argparse.Namespace) -> int:
                                      processes=processes, router_outages=proc.connectivity.report())
 
             summary_of = summarise
-        if not world.done:  # a run cut short is not a success: stopped by a signal, say which (128 + n)
-            signalled = proc.stop_reason in ("SIGTERM", "SIGINT")
-            code = 128 + signal.Signals[proc.stop_reason].value if signalled else 1
-        elif say_degraded(world, proc.connectivity.report()):
-            code = ALONE_EXIT
+        code = exit_status(world, proc.stop_reason, proc.connectivity.report(), args.finished_ok)
     except BaseException:
         crashed = True
         raise
@@ -327,7 +327,20 @@ def main(args: argparse.Namespace) -> int:
     return code
 
 
-def say_degraded(world: WorldNode, outages: list[dict]) -> bool:
+def exit_status(world: WorldNode, stop_reason: str, outages: list[dict], finished_ok: bool = False) -> int:
+    """The world's exit status at the end of its loop. A run cut short is not a success: stopped
+    by a signal, 128 + its number, else 1. A finished run is 0, or ``ALONE_EXIT`` if the world
+    flew alone at the end (said on the console either way), unless ``finished_ok``: `fxswarm stack`
+    sets it, as Docker Swarm restarts a task that exits non-zero."""
+    if not world.done:
+        signalled = stop_reason in ("SIGTERM", "SIGINT")
+        return 128 + signal.Signals[stop_reason].value if signalled else 1
+    if say_degraded(world, outages, 0 if finished_ok else ALONE_EXIT):
+        return 0 if finished_ok else ALONE_EXIT
+    return 0
+
+
+def say_degraded(world: WorldNode, outages: list[dict], status: int = ALONE_EXIT) -> bool:
     """Say on the console how the run was degraded, if it was; return whether the world heard
     none of its robots at the end (it flew alone: no success, whatever ``complete`` says)."""
     degraded = world.degraded()
@@ -344,7 +357,8 @@ def say_degraded(world: WorldNode, outages: list[dict]) -> bool:
     print(f"fxswarm world: heard none of its {world.sc.n} robots from t = {world.unheard_since * world.sc.dt:.2f} s "
           f"to the end ({world.tick - world.unheard_since} of {world.tick} ticks flown alone"
           f"{', its router lost' if outages and outages[-1]['end'] is None else ''}): "
-          f"the run is not a success; exit status {ALONE_EXIT}", file=sys.stderr)
+          f"the run is not a success; exit status {status}"
+          f"{' (--finished-ok: the run reached its end)' if status == 0 else ''}", file=sys.stderr)
     return True
 
 

@@ -101,6 +101,46 @@ class Mortal:
         return out
 
 
+class PlannedKill:
+    """A role process's own side of its planned kills, in lock-step: it falls silent at the kill's
+    time exactly where :class:`Mortal` (``fxswarm sim``) does, by the same code on the same
+    inputs, so every receiver hears its last message at the same tick as in the simulator. The
+    launcher's SIGKILL follows a few ticks later (once it hears the world pass that time) and
+    lands on a process that already says nothing.
+
+    A silenced process stays silent: its restart is a new process. That new process is not
+    silenced by the kill it restarts from: only kills at or after the time of the first message
+    it hears apply to it.
+    """
+
+    def __init__(self, node, kills: list[ProcessFault]) -> None:
+        self.node = node
+        self.kills = [f for f in kills if f.action == "kill"]
+        self.mortal: Mortal | None = None  # built on the first message, which says who we are
+
+    @property
+    def inner(self):
+        return self.node
+
+    def __getattr__(self, name: str):
+        return getattr(self.node, name)
+
+    def subscriptions(self) -> list[str]:
+        return self.node.subscriptions()
+
+    @property
+    def silenced(self) -> bool:
+        return self.mortal is not None and self.mortal.state == "killed"
+
+    def handle(self, topic: str, msg: Message) -> list[topics.Outgoing]:
+        if self.mortal is None:
+            mine = [f for f in self.kills if f.at + 1e-9 >= msg.t]
+            self.mortal = Mortal(lambda: self.node, mine)
+        if self.silenced:
+            return []
+        return self.mortal.handle(topic, msg)
+
+
 @dataclass
 class ProcessSchedule:
     """The launcher's side: which signal to send to which process, once, as sim time passes.
@@ -113,12 +153,15 @@ class ProcessSchedule:
     _done: set = field(default_factory=set)
     log: list = field(default_factory=list)  # what run() sent: {action, target, t_s, done_t_s}, for the summary
 
-    def due(self, t: float) -> list[tuple[str, str]]:
+    def due(self, t: float, restart_lead: float = 0.0) -> list[tuple[str, str]]:
+        """``restart_lead``: a restart is due that many seconds before its time (lock-step: one
+        tick, so the world, holding the restart's own tick, never waits for a restart not sent)."""
         out = []
         for n, f in enumerate(self.faults):
             back = "restart" if f.action == "kill" else "thaw"
             for what, when in ((f.action, f.at), (back, f.restart)):
-                if when is not None and t + 1e-9 >= when and (n, what) not in self._done:
+                lead = restart_lead if what == "restart" else 0.0
+                if when is not None and t + lead + 1e-9 >= when and (n, what) not in self._done:
                     self._done.add((n, what))
                     out.append((when, what, f.target))
         return [(what, target) for _, what, target in sorted(out, key=lambda e: e[0])]  # in time order
@@ -128,13 +171,17 @@ class ProcessSchedule:
         as the events logged: ``{action, target, t_s, done_t_s}`` (None: no such process).
 
         Process names: ``agent:3`` -> ``agent-3``. A restart waits until the new
-        process is alive (it rejoins with a fresh state).
+        process is alive (it rejoins with a fresh state). Lock-step: a restart is sent once the
+        world's state is one tick before it (the world holds the restart's tick until it is up:
+        :class:`fxswarm.world.node.RestartHold`); a kill needs no signal on time, as the process
+        has fallen silent at its tick by itself (:class:`PlannedKill`).
         """
         if not self.faults:
             return []
         now = swarm.sim_time()
+        lead = swarm.scenario.dt if getattr(swarm, "clock", None) == "lockstep" else 0.0
         events = []
-        for action, target in self.due(now):
+        for action, target in self.due(now, lead):
             event = {"action": action, "target": target, "t_s": round(now, 6), "done_t_s": None}
             self.log.append(event)
             events.append(event)

@@ -16,6 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from fxswarm.launch.orphans import die_with_parent
 from fxswarm.launch.plan import ChildSpec
 from fxswarm.runtime.process import PARENT_ENV
 
@@ -119,7 +120,8 @@ class Processes:
         child.log_path.parent.mkdir(parents=True, exist_ok=True)
         with open(child.log_path, "ab") as log:
             child.popen = subprocess.Popen(child.argv, stdin=subprocess.DEVNULL, stdout=log, stderr=log,
-                                           env=child_environment(self.secure), start_new_session=True)
+                                           env=child_environment(self.secure), start_new_session=True,
+                                           preexec_fn=die_with_parent())
         child.stopped_by, child.reported = None, False
 
     def ended(self) -> list[tuple[Child, int]]:

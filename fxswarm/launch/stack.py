@@ -101,7 +101,8 @@ def role_command(role: str, swarm: str, run: str, extra: list[str] | None = None
 
 
 def world_extra(wait_for: list[str]) -> list[str]:
-    out = ["--tick-timeout", var("FXSWARM_TICK_TIMEOUT", "5"), "--wait-timeout", str(WAIT_TIMEOUT_S)]
+    # --finished-ok: a run that reached its end exits 0, so Swarm (on-failure) does not start it over.
+    out = ["--tick-timeout", var("FXSWARM_TICK_TIMEOUT", "5"), "--wait-timeout", str(WAIT_TIMEOUT_S), "--finished-ok"]
     for name in wait_for:
         out += ["--wait-for", name]
     return out

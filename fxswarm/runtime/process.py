@@ -33,6 +33,7 @@ from fxswarm.core.scenario import Scenario
 from fxswarm.faults.apply import process_counters, wrap_for_process
 from fxswarm.faults.plan import CLI_HELP as FAULT_HELP
 from fxswarm.faults.plan import PLAN_ENV, FaultPlan
+from fxswarm.faults.process import PlannedKill
 from fxswarm.runtime.connectivity import Connectivity
 from fxswarm.runtime.files import write_atomic
 from fxswarm.runtime.numbers import non_negative, positive
@@ -77,8 +78,14 @@ def add_process_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def wrap_node(node, role: str, ident: int, plan: FaultPlan, scenario: Scenario, args: argparse.Namespace):
-    """The one place where an inbox filter wraps a node: the run's fault plan (fxswarm.faults)."""
-    return wrap_for_process(node, role, ident, plan, scenario.dt, args.clock == "lockstep", float(args.speed))
+    """The one place where an inbox filter wraps a node: the run's fault plan (fxswarm.faults).
+    Lock-step: a process with a planned kill falls silent at its tick (:class:`PlannedKill`), as
+    in ``fxswarm sim``, before the launcher's SIGKILL lands."""
+    lockstep = args.clock == "lockstep"
+    node = wrap_for_process(node, role, ident, plan, scenario.dt, lockstep, float(args.speed))
+    target = "leader" if role == "leader" else f"{role}:{ident}"
+    kills = [f for f in plan.processes if f.target == target and f.action == "kill"]
+    return PlannedKill(node, kills) if lockstep and kills else node
 
 
 def unwrap(node):
@@ -263,7 +270,7 @@ class RoleProcess:
     def _asked_again(self, topic: str, msg: Message) -> None:
         """The world asks again for its tick after a router outage: say again what was said for it.
         Past the fault filters on purpose: a repeat of what was already sent (or lost on the way)."""
-        if not self.ended:
+        if not self.ended and not getattr(self.node, "silenced", False):  # a planned kill's silence holds
             self.publish(self.core.said_again(msg.tick))
 
     def reader_for(self, pattern: str):

@@ -1,7 +1,8 @@
 """A user's law in containers (issue 27): `fxswarm compose` mounts the scenario's folder, with the
 law module beside it, read-only on every role's PYTHONPATH; the compose swarm on the real Docker
 engine flies that law, lock-step, bit for bit as `fxswarm sim` does. Without the mount the robots
-could not import it: the same file with the mount taken out is refused by every role (exit 2).
+could not import it: the same file with the mount taken out, a robot's container (agent-1, the
+role that flies the law) refuses it (exit 2).
 The role images of tests/docker/conftest.py; everything made is removed at the end."""
 
 from __future__ import annotations

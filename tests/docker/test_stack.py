@@ -75,6 +75,22 @@ def agent_task_container(stack: str, slot: int) -> str | None:
     return None
 
 
+def finished_world_tasks(stack: str, timeout: float = 180.0) -> list[str]:
+    """The world service's tasks' states (first word: Complete, Failed, Running, ...), once its
+    first task has left Running (it serves its record a while after the run), plus the restart
+    delay: a task Swarm restarts is a second task, made within the policy's 1 s delay."""
+    def states() -> list[str]:
+        out = sh("docker", "service", "ps", f"{stack}_world", "--format", "{{.CurrentState}}")
+        return [line.split()[0] for line in out.splitlines() if line.strip()]
+
+    end = time.monotonic() + timeout
+    while any(s in ("Running", "Starting", "Preparing", "Pending", "Assigned", "Ready") for s in states()):
+        assert time.monotonic() < end, f"the world still running {timeout:g} s after the run: {states()}"
+        time.sleep(0.5)
+    time.sleep(5.0)  # 5x the restart delay: a restart shows as a second task by then (nothing to wait on)
+    return states()
+
+
 def test_stack_runs_paper_fast_survives_a_killed_agent_and_attach_collects_the_run(images):
     stack = f"fxst{uuid.uuid4().hex[:8]}"
     folder = Path(tempfile.mkdtemp(prefix="fxswarm-stack-"))
@@ -117,6 +133,7 @@ def test_stack_runs_paper_fast_survives_a_killed_agent_and_attach_collects_the_r
         watch.wait("a command from the new robot 3", lambda: len(watch.cmd3) > heard, 120)
         back_t = watch.cmd3[heard]
         code = attach.wait(600)
+        world_tasks = finished_world_tasks(stack)
         said = (folder / "attach.log").read_text()
         print(f"stack up (all six agents alive) {up_s:.1f} s after deploy; agent 3 killed at t = {killed_t:.2f} s, "
               f"flying again at t = {back_t:.2f} s; attach said: {said.strip().splitlines()[-1]}")
@@ -154,6 +171,8 @@ def test_stack_runs_paper_fast_survives_a_killed_agent_and_attach_collects_the_r
     assert summary["ticks"] == own["ticks"] == 10_000 and own["complete"]
     assert {k: v for k, v in summary.items() if k in own} == own  # the world's summary, whole
     assert summary["restarts"] == {"agent/3": [1, 1]}, summary["restarts"]
+    # The world that finished its run exited 0 and Swarm (restart_policy on-failure) left it down.
+    assert world_tasks == ["Complete"], world_tasks
     assert summary["logger"] == {"seen": True, "died": False, "alive_at_end": summary["logger"]["alive_at_end"]}
     for key in ("ticks", "min_object_distance_m", "formation_error_final_m", "estimate_error_final_m"):
         assert summary[key] == own[key], key

@@ -13,6 +13,7 @@ import argparse
 import json
 import signal
 import threading
+import time
 
 import numpy as np
 import zenoh
@@ -35,7 +36,7 @@ def main() -> None:
     conf.insert_json5("transport/link/tls", args.tls)
     heard = [0]
     root = f"fxswarm/{args.swarm}"
-    forged = 0
+    forged: list[float] = []  # when each forgery went out (time.monotonic: one clock for every process here)
     with zenoh.open(conf) as session:
         def on_sample(sample) -> None:  # not its own forgeries, which its session hands back to it
             if not str(sample.key_expr).endswith("/agent/1/cmd"):
@@ -44,11 +45,11 @@ def main() -> None:
         session.declare_subscriber(f"{root}/**", on_sample)
         print("rogue up", flush=True)
         while not stop.wait(0.25):
-            forged += 1
-            cmd = Command("agent", 1, 10_000 + forged, 0, 0.0, 1, np.array([0.0, 0.0, -4.321]), np.zeros(3), False,
+            forged.append(time.monotonic())
+            cmd = Command("agent", 1, 10_000 + len(forged), 0, 0.0, 1, np.array([0.0, 0.0, -4.321]), np.zeros(3), False,
                           0, (), (), None, None, None, None, None)
             session.put(f"{root}/agent/1/cmd", encode(cmd))
-    print(json.dumps({"heard": heard[0], "forged": forged}), flush=True)
+    print(json.dumps({"heard": heard[0], "forged": len(forged), "forged_at": forged}), flush=True)
 
 
 if __name__ == "__main__":

@@ -4,6 +4,7 @@ law that fails is counted the same way in both."""
 
 from __future__ import annotations
 
+import os
 import shutil
 import tomllib
 from pathlib import Path
@@ -11,9 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fxswarm.core.metrics import formation_errors
 from fxswarm.runtime.output import load_trajectory
 from fxswarm.testing import dump_toml
-from support import SHORT_RUN_FAULTS as FAULTS, finish_faulted_lockstep_run
+from support import SHORT_RUN_FAULTS as FAULTS, finish_faulted_lockstep_run, measured
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "configs" / "examples" / "tether"
@@ -66,7 +68,7 @@ def test_a_failing_law_is_counted_alike_over_zenoh_and_the_run_goes_on(launch_sw
 
 
 @pytest.mark.zenoh
-def test_realtime_user_law_flies_and_holds_the_formation(launch_swarm, tmp_path):
+def test_realtime_user_law_flies_and_pulls_its_estimates_onto_the_leader(launch_swarm, tmp_path):
     """Real time, each robot its own process acting on its own clock: Tether starts its
     estimates 2 m off the leader and pulls them in (the sim: under 0.6 m by 3 s, its
     steady lag behind the climbing leader)."""
@@ -76,6 +78,11 @@ def test_realtime_user_law_flies_and_holds_the_formation(launch_swarm, tmp_path)
     assert all(c["invalid"] == 0 for c in summary["processes"].values())
     traj = load_trajectory(swarm.out)
     err = np.linalg.norm(traj["ph"] - traj["p0"][:, None, :], axis=2).max(axis=1)
+    formation = formation_errors(traj).max(axis=1)
+    measured("tether_realtime", load1=os.getloadavg()[0], estimate_first_m=err[0], estimate_last_m=err[-1],
+             formation_first_m=formation[0], formation_last_m=formation[-1])
+    # Measured (3 runs of issue 40 at load average 12-19 (the machine shared with other test runs)): 2.0 m at the start, 0.433-0.440 m at the last tick (the sim: under 0.6 m,
+    # its steady lag behind the climbing leader); 0.8 m is 1.8x the worst.
     assert err[0] > 1.5 and err[-1] < 0.8, (err[0], err[-1])
 
 

@@ -14,7 +14,12 @@ from fxswarm.core.scenario import parse
 from ros2_support import dds_environment
 from support import CONFIGS
 
-pytest.importorskip("cyclonedds")
+from prerequisites import require_module  # noqa: E402
+
+# Every test here speaks DDS: without Cyclone DDS the module skips at collection, which on CI
+# fails unless .ci/run declared prerequisite ros2 missing (tests/prerequisites.py).
+require_module("ros2")
+pytestmark = pytest.mark.ros2
 
 from cyclonedds.core import Policy, Qos  # noqa: E402
 from cyclonedds.domain import DomainParticipant  # noqa: E402

@@ -14,9 +14,14 @@ import pytest
 from fxswarm.core.scenario import load
 from fxswarm.testing import dump_toml
 from ros2_support import ROBOTS, dds_environment, running
-from support import CONFIGS, fxswarm_command
+from support import CONFIGS, fxswarm_command, measured
 
-pytest.importorskip("cyclonedds")
+from prerequisites import require_module  # noqa: E402
+
+# Every test here speaks DDS: without Cyclone DDS the module skips at collection, which on CI
+# fails unless .ci/run declared prerequisite ros2 missing (tests/prerequisites.py).
+require_module("ros2")
+pytestmark = pytest.mark.ros2
 
 from cyclonedds.core import Policy, Qos  # noqa: E402
 from cyclonedds.domain import DomainParticipant  # noqa: E402
@@ -67,7 +72,15 @@ def test_fxswarm_run_ros2_publishes_poses_estimates_leader_and_obstacle_markers(
         got[n] += [s for s in r.take(N=1000) if isinstance(s, PoseStamped)]
     got["obstacles"] += [s for s in markers.take(N=1000) if isinstance(s, MarkerArray_)]
 
+    last_t = got["leader/pose"][-1]
+    t = last_t.header.stamp.sec + last_t.header.stamp.nanosec * 1e-9
+    p0 = sc.leader.position(t)
+    apart = [float(np.linalg.norm(np.array([p.x, p.y, p.z]) - p0 - r.offset.position(t)))
+             for r in sc.robots for p in [got[f"robot{r.id}/pose"][-1].pose.position]]
+    measured("ros2_view", load1=os.getloadavg()[0], fewest=min(len(v) for v in got.values()), worst_m=max(apart))
     # 50 Hz of simulation time for 4 s: about 200 of each (some may be lost while discovering).
+    # Measured (3 runs of issue 40 at load average 12-19 (the machine shared with other test runs)): the fewest 200 every time; the worst robot 0.022-0.029 m off its place
+    # at the end (bound 0.5 m: 17x).
     assert all(len(v) >= 100 for v in got.values()), {n: len(v) for n, v in got.items()}
     for n in names:
         stamps = [s.header.stamp.sec + s.header.stamp.nanosec * 1e-9 for s in got[n]]
@@ -78,12 +91,7 @@ def test_fxswarm_run_ros2_publishes_poses_estimates_leader_and_obstacle_markers(
         p = s.pose.position
         np.testing.assert_allclose([p.x, p.y, p.z], sc.leader.position(t), atol=1e-6)
     # The robots end in formation around the leader, as the run's summary says.
-    last_t = got["leader/pose"][-1]
-    t = last_t.header.stamp.sec + last_t.header.stamp.nanosec * 1e-9
-    p0 = sc.leader.position(t)
-    for r in sc.robots:
-        p = got[f"robot{r.id}/pose"][-1].pose.position
-        assert np.linalg.norm(np.array([p.x, p.y, p.z]) - p0 - r.offset.position(t)) < 0.5
+    assert max(apart) < 0.5, apart
     (marker,) = got["obstacles"][-1].markers
     assert (marker.type, marker.header.frame_id, marker.ns) == (MARKER_SPHERE, "world", "obstacles")
     assert (marker.pose.position.x, marker.pose.position.y, marker.pose.position.z) == (0.0, 0.0, 5.0)

@@ -9,6 +9,7 @@ a domain of the test's own.
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 
@@ -17,9 +18,14 @@ import pytest
 
 from fxswarm.core.scenario import load
 from ros2_support import Robots, dds_environment, running
-from support import CONFIGS, fxswarm_command
+from support import CONFIGS, fxswarm_command, measured
 
-pytest.importorskip("cyclonedds")
+from prerequisites import require_module  # noqa: E402
+
+# Every test here speaks DDS: without Cyclone DDS the module skips at collection, which on CI
+# fails unless .ci/run declared prerequisite ros2 missing (tests/prerequisites.py).
+require_module("ros2")
+pytestmark = pytest.mark.ros2
 
 CONFIG = CONFIGS / "ros2-square.toml"
 #: Final formation error allowed, m (the simulated world ends at 0.07 m on this scenario).
@@ -67,21 +73,29 @@ def test_ros2_world_flies_dds_robots_into_formation_and_leaves_every_one_at_zero
     stand_in.wait_for("moving", timeout=1)  # said long ago: every robot was driven
     stand_in.wait_for("stopped", timeout=10)  # and every robot's latest Twist is zero
     report = stand_in.finish()
+    summary = json.loads((out / "summary.json").read_text())
+    sc = load(CONFIG)
+    offsets = np.array([r.offset.position(sc.duration) for r in sc.robots])
+    world = summary["processes"]["world-0"]
+    measured("ros2_world", load1=os.getloadavg()[0], nonzero_twists_min=min(report["nonzero_twists"]),
+             formation_error_final_m=summary["formation_error_final_m"],
+             min_object_distance_m=summary["min_object_distance_m"], poses_received=world["ros2_poses_received"],
+             shape_error_m=shape_error(np.array(report["positions"]), offsets), closest_m=report["closest_m"])
+    # Measured (3 runs of issue 40 at load average 12-19 (the machine shared with other test runs), MEASURED lines): nonzero twists 400 each every time (50 Hz of
+    # simulation time for 8 s), final formation error 0.021-0.030 m (sim 0.07; bound 0.25: 8x the
+    # worst), closest approach 1.93-1.96 m (bound 0.5 m, the repulsive radius), poses received
+    # 1507-1605 (bound 1000), the robots' own shape error 0.027-0.077 m (bound 0.25, 3x).
     assert report["last_twist"] == [[0.0, 0.0, 0.0]] * 4
     assert min(report["nonzero_twists"]) > 100, report["nonzero_twists"]  # 50 Hz for 8 s: about 400 each
 
-    summary = json.loads((out / "summary.json").read_text())
     detail = {k: summary.get(k) for k in ("complete", "formation_error_final_m", "min_object_distance_m",
                                           "late_ticks", "sense_to_command")}
     assert summary["complete"] and summary["clock"] == "realtime", detail
     assert summary["formation_error_final_m"] <= FORMATION_TOLERANCE_M, detail
     assert summary["min_object_distance_m"] >= COLLISION_M, detail
-    world = summary["processes"]["world-0"]
     assert world["ros2_zero_twists_acknowledged"] is True
     assert world["ros2_poses_received"] > 1000 and world["ros2_poses_dropped"] == 0
     # The robots' own account (their integration, not the world's record) agrees.
-    sc = load(CONFIG)
-    offsets = np.array([r.offset.position(sc.duration) for r in sc.robots])
     assert shape_error(np.array(report["positions"]), offsets) <= FORMATION_TOLERANCE_M, report["positions"]
     assert report["closest_m"] >= COLLISION_M, report["closest_m"]
 
@@ -121,7 +135,7 @@ def test_sigterm_to_the_ros2_world_mid_run_leaves_every_robot_at_zero(flying):
 
 
 @pytest.mark.zenoh
-def test_when_the_gateway_loses_the_swarm_every_robot_gets_zero_at_once(flying):
+def test_when_the_gateway_loses_the_swarm_every_robot_gets_zero_within_5_s(flying):
     stand_in, swarm = flying
     for r in swarm.scenario.robots:
         swarm.kill(f"agent-{r.id}")

@@ -113,9 +113,20 @@ def test_realtime_run_goes_on_through_a_router_restart_and_recovers_formation(la
     assert summary["complete"] is True, summary
     err = formation_errors(load_trajectory(swarm.out)).max(axis=1)
     t = np.arange(len(err)) * swarm.scenario.dt
-    # The outage showed (robots stopped, the leader went on), and the formation recovered: the
-    # final error within the bound real-time paper-fast meets without an outage.
-    assert err[(t > 10.0) & (t < 20.0)].max() > summary["formation_error_final_m"], "no outage seen"
+    from support import measured
+
+    measured("router_restart_realtime", load1=os.getloadavg()[0], before_m=err[(t > 8.0) & (t < 10.0)].max(),
+             outage_max_m=err[(t > 10.0) & (t < 20.0)].max(), final_m=summary["formation_error_final_m"],
+             last_2s_m=err[t > t[-1] - 2.0].max(), outage_ticks=sum(o["ticks"] for o in summary["router_outages"]),
+             held=summary["degraded"]["ticks"])
+    # The outage showed: the world held robots it could not hear at zero. Without an outage it
+    # holds none (a robot is held only after silent_hold of silence): planted (no router kill),
+    # held 0 ticks and this fails. Measured (4 runs of issue 40 at load average 12-19): held
+    # 97-836 ticks over outages of 144-877 ticks. (The error's growth is no such check: without
+    # an outage the error between 10 and 20 s still exceeded the error before 10 s, 1.73 m
+    # against 1.58 m, as paper-fast's obstacles come.)
+    assert summary["degraded"]["ticks"] > 0, summary["degraded"]
+    # And the formation recovered: the final error 0.029-0.126 m in the 4 runs (0.25: 2x the worst).
     assert summary["formation_error_final_m"] <= 0.25, summary["formation_error_final_m"]
     # The world reports the outage: one, after the kill, ended (the router came back), ticks run meanwhile.
     (outage,) = summary["router_outages"]
@@ -179,7 +190,8 @@ def test_secure_failover_gets_nothing_through_a_rogue_router(tmp_path, protected
             assert time.monotonic() < end, "the client never linked to the next router it lists"
             time.sleep(0.05)
         # Put what the world puts, and watch for forged commands: the rogue forges 4 a second.
-        end = time.monotonic() + (4.0 if protected else 30.0)
+        linked = time.monotonic()
+        end = linked + (4.0 if protected else 30.0)
         while time.monotonic() < end and (protected or not landed):
             session.put(f"fxswarm/{swarm}/world/sense/1", b"not for a rogue")
             time.sleep(0.05)
@@ -191,8 +203,9 @@ def test_secure_failover_gets_nothing_through_a_rogue_router(tmp_path, protected
         report = json.loads(rogue.stdout.readlines()[-1])
         rogue.wait(10)
         real.wait(10)
-    if protected:  # it forged all along the 4 s, and none landed; it heard none of the client's puts
-        assert report["forged"] >= 4 and landed == [] and report["heard"] == 0, (len(landed), report)
+    if protected:  # it forged all along the 4 s after the failover, and none landed; it heard none of the client's puts
+        during = [t for t in report["forged_at"] if linked <= t <= end]
+        assert len(during) >= 4 and landed == [] and report["heard"] == 0, (len(during), len(landed), report)
     else:
         assert landed and report["heard"] > 0, (len(landed), report)
 
@@ -213,7 +226,7 @@ def test_fxswarm_run_restarts_a_crashed_router_says_so_and_exits_0(tmp_path):
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         wait_for_line(launcher, "processes up")
-        (router,) = [pid for pid, cmd in children_of(launcher.pid).items() if " router " in cmd]
+        (router,) = [pid for pid, cmd in children_of(launcher.pid).items() if is_router(cmd)]
         os.kill(router, signal.SIGKILL)
         out, err = launcher.communicate(timeout=300)
     finally:
@@ -224,6 +237,53 @@ def test_fxswarm_run_restarts_a_crashed_router_says_so_and_exits_0(tmp_path):
     assert f"router (pid {router}) died: killed by SIGKILL; started it again (restart 1 of at most 10)" in err, err
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["complete"] and summary["missed_ticks"] == 0 and summary["launcher"]["router_restarts"] == 1
+
+
+def is_router(cmd: str) -> bool:
+    """Whether a child's command line is the router's: `fxswarm router ...`, or zenohd (or its
+    stand-in) started on the configuration `fxswarm run` writes for it (`-c .../router.zenohd.json5`)."""
+    return " router " in cmd or "router.zenohd.json5" in cmd
+
+
+def test_a_router_started_by_fxswarm_run_dies_with_its_sigkilled_launcher(tmp_path, monkeypatch):
+    """zenohd watches no parent: the kernel ends it when its launcher dies (PR_SET_PDEATHSIG),
+    SIGKILLed too; the Python roles leave by themselves. Here with the token-less stand-in,
+    started as zenohd is (with FXSWARM_ZENOHD set, the real one, `make test-zenohd`)."""
+    import subprocess
+    import sys
+    import time
+
+    from fxswarm.testing import scenario_with
+
+    from support import PAPER_FAST, fxswarm_command
+    from test_runtime_shutdown import children_of, gone, wait_for_line
+
+    if not os.environ.get("FXSWARM_ZENOHD"):
+        monkeypatch.setenv("FXSWARM_ZENOHD", f"{sys.executable} tests/integration/tokenless_router.py")
+    config = scenario_with(PAPER_FAST, tmp_path, duration=600.0)  # still running when its launcher dies
+    launcher = subprocess.Popen(fxswarm_command("run", str(config), "--out", str(tmp_path / "run"), "--no-logger",
+                                                "--topology", "routed"),
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    children: dict[int, str] = {}
+    try:
+        wait_for_line(launcher, "processes up")
+        children = children_of(launcher.pid)
+        (router,) = [pid for pid, cmd in children.items() if is_router(cmd)]
+        assert "router.zenohd.json5" in children[router]  # started as zenohd is, not `fxswarm router`
+        os.kill(launcher.pid, signal.SIGKILL)  # the launcher alone: its children are in sessions of their own
+        launcher.wait()
+        end = time.monotonic() + 30.0  # the roles notice within their 0.1 s loop; the kernel tells zenohd at once
+        while time.monotonic() < end and not all(gone(pid) for pid in children):
+            time.sleep(0.05)
+        left = {pid: cmd for pid, cmd in children.items() if not gone(pid)}
+        assert not left, f"still running 30 s after their launcher was SIGKILLed: {left}"
+    finally:
+        for pid in children:
+            if not gone(pid):
+                os.kill(pid, signal.SIGKILL)
+        if launcher.poll() is None:
+            launcher.kill()
+            launcher.wait()
 
 
 def test_health_passes_while_the_router_cannot_be_reached_only_when_asked(tmp_path):

@@ -144,9 +144,10 @@ def test_a_robot_a_partition_cuts_off_from_the_world_is_not_waited_for(launch_sw
     measured("partition", load1=os.getloadavg()[0], achieved_speed=summary["achieved_speed"],
              held_ticks=summary["held_ticks"], wall_s=summary["wall_s"], dropped=dropped)
     assert summary["complete"] and summary["ticks"] == 300, detail
-    # The cut happened: robot 3 answers each of its 50 ticks once when it keeps up, fewer when
-    # starved of CPU (34 at load 25, against 40 asserted before); without the cut, none dropped.
-    assert dropped >= 10, summary["faults"]["links"]
+    # The cut happened: without it none is dropped. How many (robot 3 answers each of the cut's
+    # 50 ticks once when it keeps up, 34 at load 25, fewer when starved of CPU) is the machine's
+    # figure, printed, not a bound: one observation cannot place one.
+    assert dropped > 0, summary["faults"]["links"]
     # Waiting for robot 3 holds each of the cut's 50 ticks for the 1 s limit, wall time on any
     # machine: 53 s or more (43 s measured, above). Not waiting: 3.0-7.0 s in 16 runs at load
     # average 8-56, 9.7 s once more at 55 (speed reached 0.31-1.00, held 0-616 periods: the

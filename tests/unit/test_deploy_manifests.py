@@ -104,6 +104,10 @@ def test_stack_file_one_scaled_agent_service_dnsrr_everywhere(tmp_path, name):
     assert services["router"]["ports"][0]["mode"] == "host", "the ingress mesh does not go with dnsrr"
     world = services["world"]["command"]
     assert world[world.index("--wait-for") + 1] == "logger/0"
+    # Restarted only on a crash before the end: a finished run exits 0 (--finished-ok, even flown
+    # alone: test_world_degraded.py), and Swarm restarts on failure only.
+    assert services["world"]["deploy"]["restart_policy"]["condition"] == "on-failure"
+    assert "--finished-ok" in world
     assert (tmp_path / "scenario.toml").read_text() == path.read_text()
 
 

@@ -5,14 +5,16 @@ the API schemas (strict). The compose path runs on the real engine: tests/docker
 
 from __future__ import annotations
 
-import shutil
 import subprocess
 from pathlib import Path
 
 import kubernetes_validate
+import pytest
 import yaml
 
+from docker_support import compose_command
 from fxswarm.cli import main as fxswarm_main
+from prerequisites import require
 
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLE = REPO / "configs" / "examples" / "tether"
@@ -30,13 +32,17 @@ def test_stack_hands_the_law_module_to_every_role_as_a_config(tmp_path):
         assert {"source": "law", "target": "/app/law/tether.py", "mode": 0o444} in service["configs"], role
         assert service["environment"]["PYTHONPATH"] == "/app/law", role
     assert [c["source"] for c in doc["services"]["router"]["configs"]] == ["scenario"]
-    tool = (["docker", "compose"] if shutil.which("docker") and subprocess.run(
-        ["docker", "compose", "version"], capture_output=True).returncode == 0 else
-        ["docker-compose"] if shutil.which("docker-compose") else None)
-    if tool is not None:  # the compose tool's v3 schema knows configs
-        r = subprocess.run([*tool, "-f", str(tmp_path / "stack.yml"), "config", "-q"], capture_output=True, text=True,
-                           cwd=tmp_path)
-        assert r.returncode == 0, f"{' '.join(tool)}: {r.stderr}"
+
+
+@pytest.mark.compose
+def test_the_compose_tool_accepts_the_stack_file_carrying_the_law(tmp_path):
+    """The compose tool's v3 schema knows configs: the stack file with the law passes `config -q`."""
+    require("compose")
+    tool = compose_command()
+    assert fxswarm_main(["stack", str(EXAMPLE / "tether.toml"), "--out", str(tmp_path)]) == 0
+    r = subprocess.run([*tool, "-f", str(tmp_path / "stack.yml"), "config", "-q"], capture_output=True, text=True,
+                       cwd=tmp_path)
+    assert r.returncode == 0, f"{' '.join(tool)}: {r.stderr}"
 
 
 def test_stack_and_k8s_of_the_paper_carry_no_law(tmp_path):

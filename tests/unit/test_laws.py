@@ -303,7 +303,12 @@ def test_the_speed_limit_is_the_nodes_for_every_law(tmp_path):
         path.write_text(dump_toml(data))
     base = tomllib.loads(PAPER_FAST.read_text())
     base["scenario"] |= {"duration": 1.0, "v_max": 0.5}
-    for sc in (load(paths["tether"]), parse(base, "paper")):
+    # The user's law, and each built-in by its name (the entry points fxswarm.laws).
+    from importlib.metadata import entry_points
+
+    built_in = sorted(e.name for e in entry_points(group="fxswarm.laws"))
+    assert len(built_in) == 6, built_in
+    for sc in (load(paths["tether"]), *(parse(base | {"controller": {"law": law}}, law) for law in built_in)):
         sim = Simulation(sc)
         summary = sim.run()
         speed = np.linalg.norm(sim.trajectory()["v"], axis=2)

@@ -183,9 +183,9 @@ def test_lockstep_tick_timer_does_not_wait_for_a_robot_that_is_gone(sc):
 
 
 def test_a_planned_restart_holds_its_tick_until_the_new_process_is_up_then_asks_again():
-    """Agent 2 killed at 1 s and restarted at 2 s (dt 0.01): the tick after the launcher has seen
-    the world's state at 2 s is held until agent 2's token is up a second time; a token up all
-    along (the kill not done yet) does not release it; the hold gives up after its limit."""
+    """Agent 2 killed at 1 s and restarted at 2 s (dt 0.01): the restart's own tick (200, at 2.00
+    s, where fxswarm sim restarts it) is held until agent 2's token is up a second time; a token
+    up all along (the kill not done yet) does not release it; the hold gives up after its limit."""
     clock = FakeClock()
     live = Liveness(clock)
     for name in ("agent/1", "agent/2"):
@@ -193,21 +193,21 @@ def test_a_planned_restart_holds_its_tick_until_the_new_process_is_up_then_asks_
     plan = (ProcessFault("agent:2", "kill", 1.0, 2.0), ProcessFault("agent:1", "freeze", 0.5, 0.6),
             ProcessFault("agent:1", "kill", 3.0))  # neither a freeze nor a kill for good is held
     hold = RestartHold(plan, live.ups, 0.01, clock, limit_s=60.0)
-    assert hold.check(200) == (False, [])  # its latest state is at 1.99 s: the launcher has not restarted yet
-    assert hold.check(201) == (True, [])  # state at 2.00 s: restart due, agent 2 still its old process
+    assert hold.check(199) == (False, [])  # at 1.99 s: not due yet
+    assert hold.check(200) == (True, [])  # at 2.00 s: restart due, agent 2 still its old process
     live.change("agent/2", False)
     clock.advance(30.0)
-    assert hold.check(201) == (True, [])
+    assert hold.check(200) == (True, [])
     live.change("agent/2", True)  # the new process
-    assert hold.check(201) == (False, ["agent/2"]) and not hold.pending
-    assert hold.check(202) == (False, [])
+    assert hold.check(200) == (False, ["agent/2"]) and not hold.pending
+    assert hold.check(201) == (False, [])
 
     late = RestartHold(plan[:1], {"agent/2": 1}, 0.01, clock, limit_s=60.0)
-    assert late.check(201) == (True, [])
+    assert late.check(200) == (True, [])
     clock.advance(59.9)
-    assert late.check(201) == (True, [])
+    assert late.check(200) == (True, [])
     clock.advance(0.1)
-    assert late.check(201) == (False, []) and late.given_up == ["agent/2"] and not late.pending
+    assert late.check(200) == (False, []) and late.given_up == ["agent/2"] and not late.pending
 
 
 def test_liveness_counts_each_time_a_token_comes_up_not_each_repeat():

@@ -83,6 +83,47 @@ def test_on_ci_a_skip_for_an_undeclared_prerequisite_fails(tmp_path):
     assert got["test_expected_failure"] == "xfail" and got["test_passes"] == "passed"
 
 
+#: Two modules skipped whole at collection: by a module-level importorskip, and for a prerequisite.
+SKIPPED_AT_COLLECTION = {
+    "test_importorskip.py": 'import pytest\npytest.importorskip("fxswarm_no_such_module")\n\ndef test_x():\n    pass\n',
+    "test_needs_browser.py": ('import pytest\npytest.skip("prerequisite browser missing: no Chromium here", '
+                              'allow_module_level=True)\n\ndef test_y():\n    pass\n'),
+    "test_passes.py": "def test_z():\n    pass\n",
+}
+
+
+def collection_run(tmp_path: Path, **env: str) -> subprocess.CompletedProcess:
+    (tmp_path / "conftest.py").write_text(
+        "from prerequisites import pytest_make_collect_report, pytest_runtest_makereport  # noqa: F401\n")
+    for name, text in SKIPPED_AT_COLLECTION.items():
+        (tmp_path / name).write_text(text)
+    clean = {k: v for k, v in os.environ.items()
+             if k not in ("CI", prerequisites.CI_MISSING_ENV) and not k.startswith("FXSWARM_REQUIRE_")}
+    return subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-p", "no:fxswarm", "-o", "addopts=",
+                           "-rA", str(tmp_path)], capture_output=True, text=True, cwd=tmp_path,
+                          env={**clean, "PYTHONPATH": str(TESTS), **env})
+
+
+def test_locally_a_module_skipped_at_collection_stays_skipped(tmp_path):
+    r = collection_run(tmp_path)
+    assert r.returncode == 0 and "1 passed, 2 skipped" in r.stdout, r.stdout
+
+
+def test_on_ci_a_module_skipped_at_collection_fails_unless_its_prerequisite_was_declared_missing(tmp_path):
+    """The planted importorskip drops its module's tests at collection, before any test report:
+    on CI it is an error, while the module skipped for a declared-missing prerequisite stands."""
+    r = collection_run(tmp_path, CI="true", FXSWARM_CI_MISSING="browser")
+    assert r.returncode != 0, r.stdout
+    assert re.search(r"^ERROR test_importorskip.py", r.stdout, re.M), r.stdout
+    assert "skipped on CI (CI=true): test_importorskip.py skipped at collection: " in r.stdout
+    assert "could not import 'fxswarm_no_such_module'" in r.stdout
+    assert re.search(r"^SKIPPED .*test_needs_browser.py.*prerequisite browser missing", r.stdout, re.M), r.stdout
+    assert "1 skipped, 1 error" in r.stdout, r.stdout
+    # Undeclared, the prerequisite's module skip fails too.
+    r = collection_run(tmp_path, CI="true", FXSWARM_CI_MISSING="snapshot")
+    assert "2 errors" in r.stdout and "skipped" not in r.stdout.splitlines()[-1], r.stdout
+
+
 def test_a_missing_prerequisite_fails_where_its_require_variable_is_set(monkeypatch):
     monkeypatch.delenv("FXSWARM_REQUIRE_BROWSER", raising=False)
     with pytest.raises(pytest.skip.Exception, match=r"^prerequisite browser missing: no Chromium"):

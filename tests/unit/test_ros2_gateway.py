@@ -15,12 +15,28 @@ from fxswarm.core.scenario import ScenarioError, load, parse
 from fxswarm.testing import dump_toml
 from support import CONFIGS, fxswarm_command
 from fxswarm.world.node import nearest_objects
+from prerequisites import require
 
 CONFIG = CONFIGS / "ros2-square.toml"
 
-pytest.importorskip("cyclonedds")
 
-from fxswarm.world import ros2, ros2_msgs  # noqa: E402
+
+# fxswarm.world.ros2 and ros2_msgs import Cyclone DDS (the [ros2] extra): only the tests that use
+# them ask for it (these fixtures, marker ros2); the scenario and command-line checks run without.
+@pytest.fixture
+def ros2():
+    require("ros2")
+    from fxswarm.world import ros2
+
+    return ros2
+
+
+@pytest.fixture
+def ros2_msgs():
+    require("ros2")
+    from fxswarm.world import ros2_msgs
+
+    return ros2_msgs
 
 
 def with_ros2(folder, **table) -> str:
@@ -55,7 +71,7 @@ def test_a_bad_ros2_table_is_refused_naming_the_field(table, field):
         parse(data, "x.toml")
 
 
-def test_the_ros2_table_defaults_are_the_issue_s():
+def test_the_ros2_table_defaults_are_the_issue_s(ros2_msgs):
     s = load(CONFIG).ros2
     assert (s.pose_topic, s.pose_type, s.cmd_topic, s.frame, s.drive) == (
         "/robot{id}/pose", "PoseStamped", "/robot{id}/cmd_vel", "world", "holonomic")
@@ -130,7 +146,7 @@ def test_a_ros2_world_without_a_speed_limit_is_refused(tmp_path):
 
 
 @pytest.mark.parametrize("value, ok", [("", 0), ("7", 7), ("232", 232), ("233", None), ("x", None), ("-1", None)])
-def test_ros_domain_id_is_read_as_ros_2_reads_it(value, ok):
+def test_ros_domain_id_is_read_as_ros_2_reads_it(value, ok, ros2):
     if ok is None:
         with pytest.raises(ValueError, match="ROS_DOMAIN_ID"):
             ros2.domain_id({"ROS_DOMAIN_ID": value})
@@ -149,7 +165,7 @@ class Clock:
         return self.t
 
 
-def gateway(**ros2_table):
+def gateway(ros2, **ros2_table):
     data = tomllib.loads(CONFIG.read_text())
     data["ros2"].update(ros2_table)
     sc = parse(data, "ros2-square.toml")
@@ -168,8 +184,8 @@ def commands(world, v):
         world.take_command(Command("agent", i, 1, world.tick, world.t, i, np.array(vi, float), np.zeros(3), False))
 
 
-def test_the_gateway_senses_the_measured_poses_as_the_simulated_world_would():
-    world, board, clock, measured = gateway()
+def test_the_gateway_senses_the_measured_poses_as_the_simulated_world_would(ros2):
+    world, board, clock, measured = gateway(ros2)
     out = world.start()
     np.testing.assert_array_equal(world.p, measured)  # the robots' poses, not the scenario's positions
     po, _, dist, _, _ = nearest_objects(measured, np.zeros((4, 3)), np.zeros((0, 3)), np.zeros((0, 3)))
@@ -186,8 +202,8 @@ def test_the_gateway_senses_the_measured_poses_as_the_simulated_world_would():
     np.testing.assert_array_equal(world.p[1:], measured[1:])
 
 
-def test_commands_are_limited_to_v_max_keeping_their_direction():
-    world, *_ = gateway(v_max=0.5)
+def test_commands_are_limited_to_v_max_keeping_their_direction(ros2):
+    world, *_ = gateway(ros2, v_max=0.5)
     world.start()
     commands(world, [[3.0, 4.0, 0.0], [0.1, 0.0, 0.0], [0, 0, 0], [0, 0, -2.0]])
     world.advance(world.sc.dt)
@@ -196,8 +212,8 @@ def test_commands_are_limited_to_v_max_keeping_their_direction():
     assert world.report()["ros2_limited_ticks"] == {"1": 1, "2": 0, "3": 0, "4": 1}
 
 
-def test_a_stale_pose_holds_its_robot_at_zero_and_is_said(capsys):
-    world, board, clock, _ = gateway()
+def test_a_stale_pose_holds_its_robot_at_zero_and_is_said(capsys, ros2):
+    world, board, clock, _ = gateway(ros2)
     world.start()
     commands(world, [[0.2, 0, 0]] * 4)
     clock.t += 0.4
@@ -221,8 +237,8 @@ def test_a_stale_pose_holds_its_robot_at_zero_and_is_said(capsys):
     assert world.report()["ros2_stale_episodes"]["3"] == 1
 
 
-def test_a_gone_or_silent_agent_s_robot_gets_zero():
-    world, board, clock, _ = gateway()
+def test_a_gone_or_silent_agent_s_robot_gets_zero(ros2):
+    world, board, clock, _ = gateway(ros2)
     world.start()
     commands(world, [[0.2, 0, 0]] * 4)
     world.gone = {2}
@@ -248,17 +264,17 @@ def test_a_gone_or_silent_agent_s_robot_gets_zero():
     ((0.5, 0.5, 0.3), math.pi / 4, math.hypot(0.5, 0.5), 0.0),  # the vertical part is dropped
     ((0.0, 0.0, 0.0), 1.0, 0.0, 0.0),
 ])
-def test_differential_drive_turns_toward_the_velocity_and_never_reverses(v, yaw, forward, omega):
+def test_differential_drive_turns_toward_the_velocity_and_never_reverses(v, yaw, forward, omega, ros2):
     f, w = ros2.differential_drive(np.array(v), yaw, heading_gain=2.0, omega_max=2.0)
     assert f == pytest.approx(forward, abs=1e-12) and w == pytest.approx(omega, abs=1e-12)
 
 
-def test_a_small_heading_error_turns_proportionally():
+def test_a_small_heading_error_turns_proportionally(ros2):
     f, w = ros2.differential_drive(np.array([1.0, 0.0, 0.0]), 0.1, heading_gain=2.0, omega_max=2.0)
     assert w == pytest.approx(-0.2) and f == pytest.approx(math.cos(0.1))
 
 
-def test_yaw_of_a_quaternion():
+def test_yaw_of_a_quaternion(ros2):
     half = math.pi / 8
     assert ros2.yaw_of(0.0, 0.0, math.sin(half), math.cos(half)) == pytest.approx(math.pi / 4)
 
@@ -267,17 +283,17 @@ def test_yaw_of_a_quaternion():
 
 
 @pytest.mark.parametrize("cls, name", [
-    (ros2_msgs.Twist_, "geometry_msgs::msg::dds_::Twist_"),
-    (ros2_msgs.PoseStamped_, "geometry_msgs::msg::dds_::PoseStamped_"),
-    (ros2_msgs.Odometry_, "nav_msgs::msg::dds_::Odometry_"),
-    (ros2_msgs.Header_, "std_msgs::msg::dds_::Header_"),
-    (ros2_msgs.Time_, "builtin_interfaces::msg::dds_::Time_"),
-    (ros2_msgs.MarkerArray_, "visualization_msgs::msg::dds_::MarkerArray_"),
+    ("Twist_", "geometry_msgs::msg::dds_::Twist_"),
+    ("PoseStamped_", "geometry_msgs::msg::dds_::PoseStamped_"),
+    ("Odometry_", "nav_msgs::msg::dds_::Odometry_"),
+    ("Header_", "std_msgs::msg::dds_::Header_"),
+    ("Time_", "builtin_interfaces::msg::dds_::Time_"),
+    ("MarkerArray_", "visualization_msgs::msg::dds_::MarkerArray_"),
 ])
-def test_types_carry_ros_2_s_dds_names(cls, name):
-    assert cls.__idl_typename__ == name
+def test_types_carry_ros_2_s_dds_names(cls, name, ros2_msgs):
+    assert getattr(ros2_msgs, cls).__idl_typename__ == name
 
 
-def test_a_twist_is_48_bytes_of_doubles_after_the_header():
+def test_a_twist_is_48_bytes_of_doubles_after_the_header(ros2_msgs):
     # CDR: 4 bytes of encapsulation header, then 6 doubles, as a ROS 2 node sends it.
     assert len(ros2_msgs.Twist_().serialize()) == 4 + 48

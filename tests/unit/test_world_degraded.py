@@ -40,6 +40,31 @@ def test_a_world_counts_the_ticks_it_held_robots_it_could_not_hear_and_whether_i
     assert world.unheard_since is None
 
 
+def test_a_finished_run_flown_alone_exits_1_but_0_with_finished_ok_and_a_cut_short_one_never_0(capsys):
+    """`fxswarm stack` runs the world with --finished-ok: Docker Swarm (restart_policy on-failure)
+    restarts a task that exits non-zero, and a run that reached its end must not start over."""
+    import dataclasses
+
+    from fxswarm.world.process import ALONE_EXIT, exit_status
+
+    world = WorldNode(dataclasses.replace(load(PAPER_FAST), duration=1.0))
+    everyone = {r.id for r in world.sc.robots}
+    advance(world, everyone, 40)
+    assert not world.done
+    assert exit_status(world, "world lost", [], finished_ok=True) == 1  # cut short: restarted
+    assert exit_status(world, "SIGTERM", [], finished_ok=True) == 128 + 15
+    advance(world, set(), 60)  # nobody heard to the end: flown alone
+    assert world.done and world.unheard_since is not None
+    capsys.readouterr()
+    assert exit_status(world, "done", []) == ALONE_EXIT == 1
+    assert "the run is not a success; exit status 1" in capsys.readouterr().err
+    assert exit_status(world, "done", [], finished_ok=True) == 0
+    assert "exit status 0 (--finished-ok: the run reached its end)" in capsys.readouterr().err
+    healthy = WorldNode(dataclasses.replace(load(PAPER_FAST), duration=0.5))
+    advance(healthy, everyone, 50)
+    assert healthy.done and exit_status(healthy, "done", []) == 0
+
+
 class FakeInfo:
     def __init__(self) -> None:
         self.handler = None
@@ -77,6 +102,6 @@ def test_losing_every_router_is_said_once_and_its_return_too_with_the_ticks_in_b
 
 def test_a_mesh_peer_that_never_had_a_link_is_not_lost():
     info, said = FakeInfo(), []
-    Connectivity(SimpleNamespace(info=info), "fxswarm agent 1", say=said.append)
+    watch = Connectivity(SimpleNamespace(info=info), "fxswarm agent 1", say=said.append)
     info.handler(event(zenoh.SampleKind.DELETE, uuid.uuid4().hex, "peer"))
-    assert not said
+    assert not said and not watch.lost and watch.report() == []
