@@ -358,8 +358,11 @@ class Swarm:
         with open(child.log_path, "ab") as log:
             # A new session: Ctrl-C reaches the launcher only, which stops children in order. The
             # kernel ends each child if the launcher dies, SIGKILLed too: zenohd watches no parent.
+            # A router is killed outright (it keeps nothing, and a close can hang on dying links);
+            # the roles get SIGTERM and stop cleanly.
+            sig = signal.SIGKILL if child.role == "router" else signal.SIGTERM
             child.popen = subprocess.Popen(child.argv, stdin=subprocess.DEVNULL, stdout=log, stderr=log,
-                                           env=env, start_new_session=True, preexec_fn=die_with_parent())
+                                           env=env, start_new_session=True, preexec_fn=die_with_parent(sig))
         child.stopped_by, child.reported = None, False
 
     # --- start -----------------------------------------------------------------------------
