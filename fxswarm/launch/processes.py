@@ -118,10 +118,14 @@ class Processes:
         launcher only, which stops its children in order."""
         assert self.children.get(child.name) is child, f"{child.name}: not one of this run's processes"
         child.log_path.parent.mkdir(parents=True, exist_ok=True)
+        # The kernel ends each child if the launcher dies, SIGKILLed too (zenohd watches no parent):
+        # a router outright (it keeps nothing, and a close can hang on dying links), the roles by
+        # SIGTERM so they stop cleanly.
+        sig = signal.SIGKILL if child.role == "router" else signal.SIGTERM
         with open(child.log_path, "ab") as log:
             child.popen = subprocess.Popen(child.argv, stdin=subprocess.DEVNULL, stdout=log, stderr=log,
                                            env=child_environment(self.secure), start_new_session=True,
-                                           preexec_fn=die_with_parent())
+                                           preexec_fn=die_with_parent(sig))
         child.stopped_by, child.reported = None, False
 
     def ended(self) -> list[tuple[Child, int]]:
