@@ -98,6 +98,14 @@ SHORTENED = {
     "line-16": ({"duration": 1.0}, lambda s: s["robots"] == 16 and s["ticks"] == 100),
     # 100 robots (101 processes and a router), a 50 Hz grid: its scale is its feature; 5 ticks.
     "scale-100": ({"duration": 0.1}, lambda s: s["robots"] == 100 and s["ticks"] == 5),
+    # 8 robots of degree 6 (the W-MSR condition for one liar): flown here with W-MSR on and robot 3
+    # lying from 0.2 s, so that its trimming discards values in the processes as in the simulator.
+    "liar-8": ({"duration": 1.0, "estimator.resilience": "w-msr", "estimator.tolerate": 1,
+                "faults.lies": [{"target": "agent:3", "at": 0.2, "drift": [0.5, 0.0, 0.0]}]},
+               lambda s: s["robots"] == 8 and sum(s["resilience"]["discarded"].values()) > 0),
+    # The helix leader followed on the oriented estimator graph with the velocity feedforward.
+    "line-16-helix": ({"duration": 1.0},
+                      lambda s: s["robots"] == 16 and s["ticks"] == 100 and s["law"]["name"].endswith("+feedforward")),
     "faults-lossy": ({"duration": 1.0}, lambda s: link_total(s, "dropped") > 0 and link_total(s, "delayed") > 0),
     "faults-slow": ({"duration": 1.0},
                     lambda s: link_total(s, "delayed") > 0 and link_total(s, "duplicated") > 0
