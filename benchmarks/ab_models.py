@@ -17,12 +17,10 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import subprocess
 import sys
 from pathlib import Path
 
-from ab_law import cpu_floor  # a sibling script
-from bench_io import machine, write_json
+from bench_io import cpu_floor, machine, ratio, run_in_tree, write_json
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -43,16 +41,7 @@ print(json.dumps({"sim_wall_s": wall, "sim_cpu_s": cpu, "final_formation_error_m
 
 
 def sim(tree: Path, *args: str) -> dict:
-    done = subprocess.run([str(tree / ".venv" / "bin" / "python"), "-c", SIM, *args], cwd=tree, capture_output=True,
-                          text=True, timeout=900)
-    if done.returncode != 0:
-        raise RuntimeError(f"sim in {tree} failed:\n{done.stderr[-2000:]}")
-    return json.loads(done.stdout.strip().splitlines()[-1])
-
-
-def ratio(this: list[dict], base: list[dict], key: str) -> dict:
-    r = [a[key] / b[key] for a, b in zip(this, base)]
-    return {"median": statistics.median(r), "range": [min(r), max(r)]}
+    return run_in_tree(tree, SIM, *args, what="sim")
 
 
 def main() -> int:

@@ -6,7 +6,7 @@
 Per side, in its own venv: the agent's ``act`` alone, thread CPU microseconds per act, the least
 over 30 batches of 200 acts, averaged over the robots, after 9 s of flight of
 configs/paper-fast.toml (the figure least moved by a shared machine's load; as
-benchmarks/ab_law.py measures it). Rounds alternate the order (A B, then B A). This tree also
+benchmarks/studies/ab_law.py measures it). Rounds alternate the order (A B, then B A). This tree also
 measures configs/liar-8.toml with ``resilience = "w-msr"`` and without, the same way.
 BASELINE_TREE: e.g. ``git worktree add /tmp/base ef4b474`` with ``make .venv/.installed`` there.
 """
@@ -16,10 +16,9 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import subprocess
 from pathlib import Path
 
-from bench_io import machine, write_json
+from bench_io import ACT_CPU, machine, run_in_tree, write_json
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -34,25 +33,13 @@ if resilient:
     raw["estimator"] |= {"resilience": "w-msr", "tolerate": 1}
 held = Simulation(parse(raw, path))
 held.run()
-acts = []
-for agent in held.agents:
-    batches = []
-    for _ in range(30):
-        c0 = time.thread_time()
-        for _ in range(200):
-            agent.act(0.01)
-        batches.append((time.thread_time() - c0) / 200 * 1e6)
-    acts.append(min(batches))
+""" + ACT_CPU + """
 print(json.dumps({"act_cpu_us": sum(acts) / len(acts)}))
 """
 
 
 def act_us(tree: Path, config: str, resilient: bool = False) -> float:
-    done = subprocess.run([str(tree / ".venv" / "bin" / "python"), "-c", ACT, config, "1" if resilient else "0"],
-                          cwd=tree, capture_output=True, text=True, timeout=900)
-    if done.returncode != 0:
-        raise RuntimeError(f"act in {tree} failed:\n{done.stderr[-2000:]}")
-    return json.loads(done.stdout.strip().splitlines()[-1])["act_cpu_us"]
+    return run_in_tree(tree, ACT, config, "1" if resilient else "0", what="act")["act_cpu_us"]
 
 
 def main() -> None:

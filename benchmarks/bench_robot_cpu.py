@@ -19,52 +19,28 @@ import os
 import statistics
 import sys
 import tempfile
+import tomllib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench_io import machine, write_json  # noqa: E402
+from fxswarm.core.tomltext import dump_toml  # noqa: E402
 from bench_threads import cpu_by_thread  # noqa: E402
 
-SCENARIO = """[scenario]
-name = "cpu-{n}"
-duration = {duration}
-dt = 0.02
-d = 1.0
-[gains]
-b1 = 0.6
-b2 = 0.6
-r0 = 0.9
-r1 = 1.2
-r2 = 0.6
-K1 = 0.4
-K2 = 0.6
-K3 = 1.0
-r3 = 6.0
-r4 = 5.0
-r5 = 3.0
-r6 = 5.0
-[leader]
-kind = "helix"
-radius = 2.0
-rate = 0.05
-climb = 0.5
-[swarm]
-count = {n}
-formation = "grid"
-spacing = 2.0
-graph = "k-nearest"
-k = 4
-pinned = 0.1
-box = 2.0
-seed = 1
-"""
+def scenario(n: int, duration: float) -> dict:
+    """A generated ``n``-robot swarm on the paper's gains (configs/paper-fast.toml), 50 Hz."""
+    gains = tomllib.loads((ROOT / "configs" / "paper-fast.toml").read_text())["gains"]
+    return {"scenario": {"name": f"cpu-{n}", "duration": duration, "dt": 0.02, "d": 1.0}, "gains": gains,
+            "leader": {"kind": "helix", "radius": 2.0, "rate": 0.05, "climb": 0.5},
+            "swarm": {"count": n, "formation": "grid", "spacing": 2.0, "graph": "k-nearest", "k": 4,
+                      "pinned": 0.1, "box": 2.0, "seed": 1}}
 
 
 def role_cpu(n: int, seconds: float, folder: Path) -> dict[str, float]:
     path = folder / f"cpu-{n}-{seconds:g}.toml"
-    path.write_text(SCENARIO.format(n=n, duration=seconds))
+    path.write_text(dump_toml(scenario(n, seconds)))
     argv = [sys.executable, "-m", "fxswarm.cli", "run", str(path), "--clock", "realtime", "--no-logger", "--quiet",
             "--out", str(folder / f"run-{seconds:g}")]
     cpu, _ = cpu_by_thread(argv)

@@ -130,14 +130,20 @@ def pytest_runtest_makereport(item, call):
     its prerequisite missing. An expected failure (xfail) is not a skip."""
     outcome = yield
     report = outcome.get_result()
-    if not _on_ci() or not report.skipped or hasattr(report, "wasxfail"):
+    if report.skipped and not hasattr(report, "wasxfail"):
+        _fail_undeclared_skip(report, "")
+
+
+def _fail_undeclared_skip(report, prefix: str) -> None:
+    """On CI, turn skipped ``report`` into a failure unless its reason was declared missing."""
+    if not _on_ci():
         return
     reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
     reason = reason.removeprefix("Skipped: ")
     if skip_allowed_on_ci(reason, declared_missing()):
         return
     report.outcome = "failed"
-    report.longrepr = _ci_failure(reason)
+    report.longrepr = _ci_failure(prefix + reason)
 
 
 def _on_ci() -> bool:
@@ -157,14 +163,8 @@ def pytest_make_collect_report(collector):
     such a skip drops every test of the module before :func:`pytest_runtest_makereport` sees one."""
     outcome = yield
     report = outcome.get_result()
-    if not _on_ci() or report.outcome != "skipped":
-        return
-    reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
-    reason = reason.removeprefix("Skipped: ")
-    if skip_allowed_on_ci(reason, declared_missing()):
-        return
-    report.outcome = "failed"
-    report.longrepr = _ci_failure(f"{collector.nodeid} skipped at collection: {reason}")
+    if report.outcome == "skipped":
+        _fail_undeclared_skip(report, f"{collector.nodeid} skipped at collection: ")
 
 
 def main(argv: list[str]) -> int:

@@ -26,16 +26,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import statistics
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 # The maintained benchmarks this study imports (bench_io, ...) sit one folder up.
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import ab_runtime  # a sibling script: the lock-step measurement and its floor, per tree
-from bench_io import machine, write_json
+from bench_io import ACT_CPU, cpu_floor, machine, ratio, run_in_tree, write_json
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -56,42 +53,14 @@ raw = tomllib.load(open("configs/paper-fast.toml", "rb"))
 raw["scenario"]["duration"] = 9.0
 held = Simulation(parse(raw, "act"))
 held.run()
-acts = []
-for agent in held.agents:
-    batches = []
-    for _ in range(30):
-        c0 = time.thread_time()
-        for _ in range(200):
-            agent.act(0.01)
-        batches.append((time.thread_time() - c0) / 200 * 1e6)
-    acts.append(min(batches))
+""" + ACT_CPU + """
 print(json.dumps({"sim_wall_s": wall, "sim_cpu_s": cpu, "sim_ticks_per_s": sc.ticks / wall,
                   "act_cpu_us": sum(acts) / len(acts), "load_avg": os.getloadavg()[0]}))
 """
 
 
-def cpu_floor() -> dict:
-    """Seconds of a fixed pure-Python float workload (3-vector arithmetic, as the law's)."""
-    start = time.perf_counter()
-    x, y, z = 0.1, 0.2, 0.3
-    for _ in range(400_000):
-        x, y, z = y * 0.999 + z * 0.001, z * 0.999 + x * 0.001, x * 0.999 + y * 0.001
-        s = x * x + y * y + z * z
-        x, y, z = x / s ** 0.5, y / s ** 0.5, z / s ** 0.5
-    return {"cpu_floor_s": time.perf_counter() - start}
-
-
 def sim(tree: Path) -> dict:
-    done = subprocess.run([str(tree / ".venv" / "bin" / "python"), "-c", SIM], cwd=tree, capture_output=True,
-                          text=True, timeout=900)
-    if done.returncode != 0:
-        raise RuntimeError(f"sim in {tree} failed:\n{done.stderr[-2000:]}")
-    return json.loads(done.stdout.strip().splitlines()[-1])
-
-
-def ratio(this: list[dict], base: list[dict], key: str) -> dict:
-    r = [a[key] / b[key] for a, b in zip(this, base)]
-    return {"median": statistics.median(r), "range": [min(r), max(r)]}
+    return run_in_tree(tree, SIM, what="sim")
 
 
 def rounds_from_log(path: Path) -> dict[str, list]:

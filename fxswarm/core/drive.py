@@ -117,22 +117,19 @@ def step_double_integrator(p: np.ndarray, vel: np.ndarray, v: np.ndarray, dt: fl
 
     Returns ``(p, vel, speed_limited, accel_limited)``, the last two bool (k,).
     """
-    k = len(p)
-    at_v, at_a = np.zeros(k, dtype=bool), np.zeros(k, dtype=bool)
     target = v.copy()
-    v_max = np.array([np.inf if d.v_max is None else d.v_max for d in drives])
-    speed = np.sqrt(np.einsum("ij,ij->i", target, target))
-    over = speed > v_max
-    if over.any():
-        target[over] *= (v_max[over] / speed[over])[:, None]
-        at_v |= over
+    at_v = _clip_norms(target, np.array([np.inf if d.v_max is None else d.v_max for d in drives]))
     tau = np.array([max(d.tau, dt) for d in drives])
     a = (target - vel) / tau[:, None]
-    a_max = np.array([np.inf if d.a_max is None else d.a_max for d in drives])
-    a_norm = np.sqrt(np.einsum("ij,ij->i", a, a))
-    clip = a_norm > a_max
-    if clip.any():
-        a[clip] *= (a_max[clip] / a_norm[clip])[:, None]
-        at_a |= clip
+    at_a = _clip_norms(a, np.array([np.inf if d.a_max is None else d.a_max for d in drives]))
     vel_new = vel + dt * a
     return p + dt * vel_new, vel_new, at_v, at_a
+
+
+def _clip_norms(x: np.ndarray, limit: np.ndarray) -> np.ndarray:
+    """Scale each row of ``x`` (k, 3) longer than its ``limit`` (k,) down to it, in place; which were."""
+    norm = np.sqrt(np.einsum("ij,ij->i", x, x))
+    over = norm > limit
+    if over.any():
+        x[over] *= (limit[over] / norm[over])[:, None]
+    return over

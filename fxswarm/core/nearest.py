@@ -62,14 +62,7 @@ def nearest_objects_tree(p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, ob
     from scipy.spatial import cKDTree  # only for large swarms: small ones never import scipy
 
     n, m = len(p), len(obstacles)
-    objects = np.concatenate([obstacles, p])
-    object_v = np.concatenate([obstacle_v, v])
-    own = np.arange(n)
-    if m:
-        obstacle_all = distances(p, np.broadcast_to(obstacles, (n, m, 3)))
-        obstacle_dist = obstacle_all.min(axis=1)
-    else:
-        obstacle_all, obstacle_dist = np.zeros((n, 0)), np.full(n, np.inf)
+    objects, object_v, own, obstacle_all, obstacle_dist = _objects(p, v, obstacles, obstacle_v)
     tree = cKDTree(p)
     choice, best = np.zeros(n, dtype=np.intp), np.zeros(n)
     rows = own
@@ -139,15 +132,8 @@ class NearestCache:
         moved = p - self.p0
         delta = np.sqrt(moved[:, 0] * moved[:, 0] + moved[:, 1] * moved[:, 1] + moved[:, 2] * moved[:, 2])
         bound = self.reach - delta - delta.max()  # the nearest any unlisted robot can be now
-        objects = np.concatenate([obstacles, p])
-        object_v = np.concatenate([obstacle_v, v])
+        objects, object_v, own, obstacle_all, obstacle_dist = _objects(p, v, obstacles, obstacle_v)
         idx = self.idx
-        own = np.arange(n)
-        if m:
-            obstacle_all = distances(p, np.broadcast_to(obstacles, (n, m, 3)))
-            obstacle_dist = obstacle_all.min(axis=1)
-        else:
-            obstacle_all, obstacle_dist = np.zeros((n, 0)), np.full(n, np.inf)
         cand = np.concatenate([np.broadcast_to(np.arange(m), (n, m)), m + idx], axis=1)
         dist = np.concatenate([obstacle_all, distances(p, p[idx])], axis=1)
         dist[cand == m + own[:, None]] = np.inf  # a robot is not its own nearest object
@@ -165,3 +151,17 @@ class NearestCache:
             choice[i] = int(row.argmin())
             best[i] = row[choice[i]]
         return objects[choice], object_v[choice], best, choice < m, obstacle_dist
+
+
+def _objects(p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, obstacle_v: np.ndarray):
+    """What both tree searches start from: every object (obstacles, then robots) and its
+    velocity, the robots' own indices, each robot's distance to every obstacle (n, m) and to the
+    nearest one (n,)."""
+    n, m = len(p), len(obstacles)
+    if m:
+        obstacle_all = distances(p, np.broadcast_to(obstacles, (n, m, 3)))
+        obstacle_dist = obstacle_all.min(axis=1)
+    else:
+        obstacle_all, obstacle_dist = np.zeros((n, 0)), np.full(n, np.inf)
+    return (np.concatenate([obstacles, p]), np.concatenate([obstacle_v, v]), np.arange(n), obstacle_all,
+            obstacle_dist)

@@ -30,6 +30,7 @@ from typing import Callable
 from fxswarm.core import bus as topics
 from fxswarm.core.messages import KINDS, Command, Estimate, Message, Sense
 from fxswarm.faults.plan import FAULTABLE_KINDS, FaultPlan
+from fxswarm.faults.wrapper import NodeWrapper
 
 KIND_OF: dict[type, str] = {cls: name for name, cls in KINDS.items()}
 
@@ -66,7 +67,7 @@ def _upstream(subscriptions: list[str]) -> list[tuple[str, str]]:
     return out
 
 
-class FaultyInbox:
+class FaultyInbox(NodeWrapper):
     """``node`` as ``receiver`` (``agent:<id>`` or ``world``) hears it through ``plan``.
 
     dt: control period, s (lock-step delays are rounded to it); clock: real
@@ -106,17 +107,6 @@ class FaultyInbox:
             core = core.inner
         if hasattr(core, "expects"):
             core.expects = self.expects
-
-    @property
-    def inner(self):
-        """The wrapped node (the runtime's ``unwrap()`` walks ``.inner``)."""
-        return self.node
-
-    def __getattr__(self, name: str):
-        return getattr(self.node, name)
-
-    def subscriptions(self) -> list[str]:
-        return self.node.subscriptions()
 
     # --- what the node should wait for -------------------------------------------------
 

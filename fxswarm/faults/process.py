@@ -21,6 +21,7 @@ from typing import Callable
 from fxswarm.core import bus as topics
 from fxswarm.core.messages import Command, Estimate, LeaderState, Message
 from fxswarm.faults.plan import ProcessFault
+from fxswarm.faults.wrapper import NodeWrapper
 
 #: What lock-step sends a tick early (docs/design.md "Lock-step pipelining").
 PIPELINED = (Estimate, LeaderState)
@@ -101,7 +102,7 @@ class Mortal:
         return out
 
 
-class PlannedKill:
+class PlannedKill(NodeWrapper):
     """A role process's own side of its planned kills, in lock-step: it falls silent at the kill's
     time exactly where :class:`Mortal` (``fxswarm sim``) does, by the same code on the same
     inputs, so every receiver hears its last message at the same tick as in the simulator. The
@@ -117,16 +118,6 @@ class PlannedKill:
         self.node = node
         self.kills = [f for f in kills if f.action == "kill"]
         self.mortal: Mortal | None = None  # built on the first message, which says who we are
-
-    @property
-    def inner(self):
-        return self.node
-
-    def __getattr__(self, name: str):
-        return getattr(self.node, name)
-
-    def subscriptions(self) -> list[str]:
-        return self.node.subscriptions()
 
     @property
     def silenced(self) -> bool:
