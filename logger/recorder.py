@@ -118,6 +118,32 @@ class LinkHealth:
         return bad, self.drops, self.stale_frames.copy()
 
 
+class _OffsetTable:
+    """Every robot's desired offset at many times, (F, n, 3), without a Python call per robot.
+
+    The values are :meth:`fxswarm.core.motion.Offset.position`'s bit for bit (``base + a *
+    math.sin(omega t + phase)`` per moving axis): robots sharing one sinusoid (usually all) are
+    one group, and ``math.sin`` runs once per group, axis and frame, not per robot."""
+
+    def __init__(self, sc: Scenario) -> None:
+        self.base = np.array([r.offset.base for r in sc.robots], dtype=float).reshape(-1, 3)
+        groups: dict[tuple, list[int]] = {}
+        for i, r in enumerate(sc.robots):
+            o = r.offset
+            if any(o.amplitude):
+                groups.setdefault((tuple(o.amplitude), tuple(o.omega), tuple(o.phase)), []).append(i)
+        self.groups = [(key, np.array(ids)) for key, ids in groups.items()]
+
+    def at(self, t: np.ndarray) -> np.ndarray:
+        out = np.broadcast_to(self.base, (len(t), *self.base.shape)).copy()
+        for (amp, omega, phase), ids in self.groups:
+            for k in range(3):
+                if amp[k]:
+                    wave = np.array([amp[k] * math.sin(omega[k] * x + phase[k]) for x in t.tolist()])
+                    out[:, ids, k] = out[:, ids, k] + wave[:, None]
+        return out
+
+
 @dataclass
 class _Frame:
     """One frame as buffered until the next flush: the state plus what had to be known at its time."""
@@ -162,6 +188,7 @@ class SwarmRecorder:
         self._edge_a = np.array([a for a, _ in robot_edges], dtype=int)
         self._edge_b = np.array([b for _, b in robot_edges], dtype=int)
         self._leader_edge = np.array([j - 1 for i, j in self.links.edges if i == 0], dtype=int)
+        self._offsets = _OffsetTable(scenario)
 
     # --- static part ----------------------------------------------------------------------
 
@@ -273,7 +300,7 @@ class SwarmRecorder:
         p = np.stack([s.p for s in states])  # (F, n, 3)
         ph = np.stack([s.ph for s in states])
         p0 = np.array([sc.leader.position(x) for x in t])  # (F, 3)
-        offsets = np.array([[r.offset.position(x) for r in sc.robots] for x in t])  # (F, n, 3)
+        offsets = self._offsets.at(t)  # (F, n, 3)
         traj = {"p": p, "ph": ph, "p0": p0, "offsets": offsets}
         flat = p.reshape(-1, 3)
 
