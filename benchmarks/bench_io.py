@@ -81,3 +81,12 @@ def cpu_floor() -> dict:
         s = x * x + y * y + z * z
         x, y, z = x / s ** 0.5, y / s ** 0.5, z / s ** 0.5
     return {"cpu_floor_s": time.perf_counter() - start}
+
+
+def finish(path: str | Path, results: dict, shown: dict) -> int:
+    """Stamp the load at the end into ``results['machine']``, write ``results`` to ``path``, print
+    ``shown``; the script's exit status."""
+    results["machine"]["load_avg_at_end"] = round(os.getloadavg()[0], 2)
+    write_json(path, results)
+    print(json.dumps(shown, indent=2))
+    return 0

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import statistics
 import sys
@@ -30,7 +29,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench_io import machine, write_json  # a sibling script
+from bench_io import finish, machine  # a sibling script
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "configs" / "paper-fast.toml"
@@ -141,10 +140,7 @@ def main() -> int:
     }
     if not args.skip_multi:
         results["multi_process"] = multi_process(args.duration, args.repeats)
-    results["machine"]["load_avg_at_end"] = round(os.getloadavg()[0], 2)
-    write_json(args.out, results)
-    print(json.dumps(results, indent=2))
-    return 0
+    return finish(args.out, results, results)
 
 
 if __name__ == "__main__":

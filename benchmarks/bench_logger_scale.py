@@ -15,8 +15,6 @@ so drifting load hits each alike. Writes benchmarks/results/logger_scale.json.
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import statistics
 import sys
 import tempfile
@@ -24,7 +22,7 @@ import time
 import tomllib
 from pathlib import Path
 
-from bench_io import machine, write_json  # a sibling script
+from bench_io import finish, machine  # a sibling script
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "configs" / "examples" / "swarm" / "swarm-n.toml"
@@ -105,10 +103,7 @@ def main() -> int:
                 "includes start() (static styles) and close() (the file flush)",
         "by_n": by_n,
     }
-    results["machine"]["load_avg_at_end"] = round(os.getloadavg()[0], 2)
-    write_json(args.out, results)
-    print(json.dumps(by_n, indent=2))
-    return 0
+    return finish(args.out, results, by_n)
 
 
 if __name__ == "__main__":

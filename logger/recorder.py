@@ -38,6 +38,7 @@ import rerun as rr
 from fxswarm.core import bus as topics
 from fxswarm.core.messages import Message, WorldState
 from fxswarm.core.metrics import estimate_errors, formation_errors
+from fxswarm.core.motion import offset_groups
 from fxswarm.core.scenario import Scenario
 from fxswarm.logger import style
 from fxswarm.logger.columns import send_rows, strips_array
@@ -126,13 +127,7 @@ class _OffsetTable:
     one group, and ``math.sin`` runs once per group, axis and frame, not per robot."""
 
     def __init__(self, sc: Scenario) -> None:
-        self.base = np.array([r.offset.base for r in sc.robots], dtype=float).reshape(-1, 3)
-        groups: dict[tuple, list[int]] = {}
-        for i, r in enumerate(sc.robots):
-            o = r.offset
-            if any(o.amplitude):
-                groups.setdefault((tuple(o.amplitude), tuple(o.omega), tuple(o.phase)), []).append(i)
-        self.groups = [(key, np.array(ids)) for key, ids in groups.items()]
+        self.base, self.groups = offset_groups(sc.robots)
 
     def at(self, t: np.ndarray) -> np.ndarray:
         out = np.broadcast_to(self.base, (len(t), *self.base.shape)).copy()

@@ -185,3 +185,16 @@ class Offset:
 
 
 Path = Static | ConstantVelocity | Helix | Circle | Waypoints
+
+
+def offset_groups(robots) -> tuple[np.ndarray, list[tuple[tuple, np.ndarray]]]:
+    """Every robot's offset base (n, 3), and the robots sharing each moving sinusoid:
+    ``[((amplitude, omega, phase), robot indices)]`` in first-seen order. Arrays of offsets over
+    many robots (the batch path, the logger) compute one ``math.sin`` per group, not per robot."""
+    base = np.array([r.offset.base for r in robots], dtype=float).reshape(-1, 3)
+    groups: dict[tuple, list[int]] = {}
+    for i, r in enumerate(robots):
+        o = r.offset
+        if any(o.amplitude):
+            groups.setdefault((tuple(o.amplitude), tuple(o.omega), tuple(o.phase)), []).append(i)
+    return base, [(key, np.array(ids)) for key, ids in groups.items()]

@@ -22,6 +22,7 @@ import time
 import numpy as np
 
 from fxswarm.core.laws import BatchUnsupported, resolve_law
+from fxswarm.core.motion import offset_groups
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.plan import FaultPlan
 from fxswarm.world.node import WorldNode
@@ -80,13 +81,7 @@ class _Offsets:
     :meth:`fxswarm.core.motion.Offset.state_lists` does, once per distinct sinusoid."""
 
     def __init__(self, sc: Scenario) -> None:
-        self.base = np.array([r.offset.base for r in sc.robots], dtype=float)
-        groups: dict[tuple, list[int]] = {}
-        for i, r in enumerate(sc.robots):
-            o = r.offset
-            if any(o.amplitude):
-                groups.setdefault((tuple(o.amplitude), tuple(o.omega), tuple(o.phase)), []).append(i)
-        self.groups = [(key, np.array(ids)) for key, ids in groups.items()]
+        self.base, self.groups = offset_groups(sc.robots)
 
     def at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         pos, vel = self.base.copy(), np.zeros_like(self.base)
