@@ -92,3 +92,19 @@ def test_the_launcher_s_schedule_leads_restarts_by_a_tick_only_in_lock_step():
     realtime.due(0.5)
     assert realtime.run(Swarm("realtime", 1.39)) == []
 
+
+
+def test_a_receiver_waits_for_what_a_killed_sender_sent_the_tick_before_its_kill():
+    """The leader's state and an estimate for the kill's own tick left the sender a tick early,
+    while it was up: the simulator always hears them, so a process waits for them too (else it
+    is a race whether they beat the next sensing). A command for that tick was never sent."""
+    from fxswarm.faults.inbox import FaultyInbox
+    from fxswarm.faults.plan import FaultPlan
+
+    plan = FaultPlan(processes=(ProcessFault("leader", "kill", 3.0), KILL))
+    agent, world = FaultyInbox(Echo(), "agent:1", plan, DT), FaultyInbox(Echo(), "world", plan, DT)
+    assert agent.expects("leader", 299) and agent.expects("leader", 300)  # sent at tick 299
+    assert not agent.expects("leader", 301)
+    assert agent.expects("agent:2", 40) and not agent.expects("agent:2", 41)  # estimate: pipelined
+    assert not world.expects("agent:2", 40) and world.expects("agent:2", 39)  # command: its own tick
+    assert not agent.expects("agent:2", 139) and agent.expects("agent:2", 140)  # restarted at 1.4 s
