@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from fxswarm.core.scenario import ScenarioError, load, parse
+from fxswarm.core.tomltext import dump_toml
 from fxswarm.study import campaign
 from fxswarm.study.campaign_plan import (
     CampaignError,
@@ -108,7 +109,6 @@ def test_any_name_the_scenario_takes_is_accepted_and_runs_are_labelled_with_the_
     scenario flying fixed-time with feedforward tracking is labelled so, not 'fixed-time'."""
     table = dict(load(PAPER_FAST).raw, estimator={"tracking": "feedforward"})
     config = tmp_path / "ff.toml"
-    from fxswarm.core.tomltext import dump_toml
     config.write_text(dump_toml(table))
     plan = make_plan(str(config), load(config), tmp_path / "c", [], [], [], 1, 0, CRITERIA)
     assert plan.laws == ("fixed-time+feedforward",) and {r.law for r in plan.runs} == {"fixed-time+feedforward"}
