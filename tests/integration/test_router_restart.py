@@ -127,16 +127,18 @@ def test_realtime_run_goes_on_through_a_router_restart_and_recovers_formation(la
     assert outage["ticks"] > 0, outage
     # It showed in the flight: the world held each robot it could not hear at zero, from
     # silent_hold (0.5 s: 50 ticks) into the outage to its end, and none while the router was up.
-    # Measured (20 runs of issue 40 at load average 15-24, `fxswarm router`): held the outage's
-    # ticks less 40-50, over outages of 137-481 ticks; a world that holds none fails here (less 100
-    # allowed: twice silent_hold). zenohd came back within 20 ticks, before any robot was held.
+    # Measured (40 runs of issue 40 at load average 9-36, `fxswarm router`): held the outage's
+    # ticks less 33-50, over outages of 137-1328 ticks; a world that holds none fails here (less
+    # 100 allowed: twice silent_hold). zenohd came back within 20 ticks, before any robot was held.
     # (The error's growth is no such check: without an outage the error between 10 and 20 s still
     # exceeded the error before 10 s, 1.73 m against 1.58 m, as paper-fast's obstacles come.)
     held, hold_ticks = summary["degraded"]["ticks"], round(DegradedLimits.silent_hold / swarm.scenario.dt)
     assert outage["ticks"] - 2 * hold_ticks <= held <= outage["ticks"], (held, outage)
-    # And the formation recovered: the final error 0.015-0.151 m in 24 runs at load average 12-24
-    # (0.25: 1.7x the worst).
-    assert summary["formation_error_final_m"] <= 0.25, summary["formation_error_final_m"]
+    # And the formation recovered: the final error 0.015-0.226 m in 40 runs at load average 9-36,
+    # and at most 0.232 m over the last 2 s (the law's chatter under load: the last tick samples
+    # it). 0.5 m is 2.2x the worst; a swarm that does not recover stays meters off (3.0-31.6 m
+    # during those outages).
+    assert summary["formation_error_final_m"] <= 0.5, summary["formation_error_final_m"]
 
 
 @pytest.mark.parametrize("protected", [True, False], ids=["secure", "rules-off"])
