@@ -7,6 +7,7 @@ import itertools
 import json
 import os
 import queue
+import secrets
 import signal
 import subprocess
 import sys
@@ -23,10 +24,15 @@ _domains = itertools.count()
 
 
 def dds_environment() -> dict[str, str]:
-    """CYCLONEDDS_URI (loopback, no multicast) and a ROS_DOMAIN_ID of this test's own: from the
-    pid, so parallel test runs do not hear each other, and a new one per test (1..232)."""
+    """CYCLONEDDS_URI (loopback, no multicast) with a discovery tag of this test's own, and a
+    ROS_DOMAIN_ID spread by pid and test (1..232).
+
+    The tag is what keeps parallel test runs apart: Cyclone DDS discovers only participants with
+    the same tag. 232 domains are too few for that: two runs' tests met in one domain, and each
+    world flew the other's stand-in robots (poses of both, one's at its start position)."""
     domain = 1 + (os.getpid() * 7 + next(_domains)) % 232
-    return {"CYCLONEDDS_URI": LOOPBACK_XML.as_uri(), "ROS_DOMAIN_ID": str(domain)}
+    tag = f"<Discovery><Tag>fxswarm-test-{secrets.token_hex(8)}</Tag></Discovery>"
+    return {"CYCLONEDDS_URI": f"{LOOPBACK_XML.as_uri()},{tag}", "ROS_DOMAIN_ID": str(domain)}
 
 
 class Robots:

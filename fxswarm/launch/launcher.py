@@ -196,13 +196,13 @@ def _on_death(d: Death, swarm: Swarm, args: argparse.Namespace, seen: _Outcome) 
             seen.code = 1
     elif d.child.role == "logger":
         seen.logger_death = f"{d.describe()} at t = {swarm.sim_time():.2f} s"
-        warn(f"\nfxswarm run: warning: {d.describe()}; the swarm runs on without it")
+        warn(f"\nfxswarm run: warning: {d.describe('the swarm runs on without it')}")
     elif d.restarted:
-        warn(f"\nfxswarm run: warning: {d.describe()}; started it again (restart "
-             f"{swarm.router_restarts} of at most {MAX_ROUTER_RESTARTS}): every process reconnects")
+        warn("\nfxswarm run: warning: " + d.describe(f"started it again (restart {swarm.router_restarts} of at "
+                                                     f"most {MAX_ROUTER_RESTARTS}): every process reconnects"))
     elif d.child.role == "router" and swarm.topology == "mesh":
-        warn(f"\nfxswarm run: warning: {d.describe()}; the swarm runs on over its direct links "
-             f"(a process that starts from now on cannot join it)")
+        warn("\nfxswarm run: warning: " + d.describe("the swarm runs on over its direct links (a process that "
+                                                     "starts from now on cannot join it)"))
     else:
         warn(f"\nfxswarm run: {d.describe()}")
         seen.code = 1

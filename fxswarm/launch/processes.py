@@ -77,10 +77,12 @@ class Death:
         if self.pid is None:
             self.pid = self.child.pid
 
-    def describe(self) -> str:
+    def describe(self, then: str = "") -> str:
+        """``NAME (pid N) died: HOW``, ``; then`` (what the launcher did about it), then its last
+        output, which goes last: its lines (zenohd logs as it starts) must not split the sentence."""
         how = f"killed by {signal.Signals(-self.code).name}" if self.code < 0 else f"exit code {self.code}"
         tail = self.child.tail()
-        text = f"{self.child.name} (pid {self.pid}) died: {how}"
+        text = f"{self.child.name} (pid {self.pid}) died: {how}" + (f"; {then}" if then else "")
         if tail:
             text += "; its last output:\n" + "\n".join("    " + line for line in tail)
         return text

@@ -15,8 +15,8 @@ It says on stdout (a line each, flushed), for the test to wait on:
 ``stopped`` (after that, every robot's latest Twist is zero; said again after each new start),
 ``muted I`` (``--mute I:T``: robot I stops publishing its pose T s after its first Twist),
 ``held I`` (a muted robot then received a zero Twist).
-On SIGTERM/SIGINT it writes ``--report`` (JSON: positions, last Twists, counts, the closest two
-robots came) and exits 0.
+On SIGTERM/SIGINT it writes ``--report`` (JSON: positions, last Twists, counts, when each robot
+last took a non-zero Twist (``time.monotonic()``), the closest two robots came) and exits 0.
 """
 
 import argparse
@@ -124,6 +124,7 @@ def main() -> int:
     v = [[0.0, 0.0, 0.0] for _ in range(n)]
     received = [0] * n
     nonzero = [0] * n
+    last_nonzero_at = [None] * n  # time.monotonic() (system-wide): when each last took a non-zero Twist
     first_twist: float | None = None
     moving = stopped = muted = held = False
     closest = math.inf
@@ -131,6 +132,12 @@ def main() -> int:
     next_due = last
     while not stop:
         now = time.monotonic()
+        # Moved on the Twists in force since the last turn, before taking new ones: a robot does
+        # not apply a command before it arrives (this process starved of CPU would, by a whole stall).
+        for i in range(n):
+            for k in range(3):
+                positions[i][k] += (now - last) * v[i][k]
+        last = now
         for i, reader in enumerate(readers):
             for t in reader.take(N=32):
                 if not isinstance(t, Twist):  # an InvalidSample: a writer went away, no data
@@ -139,6 +146,7 @@ def main() -> int:
                 received[i] += 1
                 if any(v[i]):
                     nonzero[i] += 1
+                    last_nonzero_at[i] = now
                     first_twist = now if first_twist is None else first_twist
                 elif muted and i + 1 == mute_id and not held:
                     held = True
@@ -151,11 +159,6 @@ def main() -> int:
             if all_zero and not stopped:
                 say("stopped")
             stopped = all_zero
-        dt = now - last
-        last = now
-        for i in range(n):
-            for k in range(3):
-                positions[i][k] += dt * v[i][k]
         for i in range(n):
             for j in range(i + 1, n):
                 closest = min(closest, math.dist(positions[i], positions[j]))
@@ -174,7 +177,8 @@ def main() -> int:
         time.sleep(max(0.0, next_due - time.monotonic()))
     with open(args.report, "w") as fh:
         json.dump({"positions": positions, "last_twist": v, "twists_received": received,
-                   "nonzero_twists": nonzero, "closest_m": closest}, fh)
+                   "nonzero_twists": nonzero, "last_nonzero_at": last_nonzero_at,
+                   "closest_m": closest}, fh)
     return 0
 
 

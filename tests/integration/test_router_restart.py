@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from fxswarm.core.metrics import formation_errors
+from fxswarm.faults.plan import DegradedLimits
 from fxswarm.runtime.output import load_trajectory
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.timeout(600)]
@@ -119,19 +120,25 @@ def test_realtime_run_goes_on_through_a_router_restart_and_recovers_formation(la
              outage_max_m=err[(t > 10.0) & (t < 20.0)].max(), final_m=summary["formation_error_final_m"],
              last_2s_m=err[t > t[-1] - 2.0].max(), outage_ticks=sum(o["ticks"] for o in summary["router_outages"]),
              held=summary["degraded"]["ticks"])
-    # The outage showed: the world held robots it could not hear at zero. Without an outage it
-    # holds none (a robot is held only after silent_hold of silence): planted (no router kill),
-    # held 0 ticks and this fails. Measured (4 runs of issue 40 at load average 12-19): held
-    # 97-836 ticks over outages of 144-877 ticks. (The error's growth is no such check: without
-    # an outage the error between 10 and 20 s still exceeded the error before 10 s, 1.73 m
-    # against 1.58 m, as paper-fast's obstacles come.)
-    assert summary["degraded"]["ticks"] > 0, summary["degraded"]
-    # And the formation recovered: the final error 0.029-0.126 m in the 4 runs (0.25: 2x the worst).
-    assert summary["formation_error_final_m"] <= 0.25, summary["formation_error_final_m"]
-    # The world reports the outage: one, after the kill, ended (the router came back), ticks run meanwhile.
+    # The world reports the outage: one, after the kill, ended (the router came back), ticks run
+    # meanwhile. Planted (no router kill): no outage, and this fails.
     (outage,) = summary["router_outages"]
     assert outage["start"] > 9.0 and outage["end"] is not None and outage["end"] > outage["start"], outage
     assert outage["ticks"] > 0, outage
+    # It showed in the flight: the world held each robot it could not hear at zero, from
+    # silent_hold (0.5 s: 50 ticks) into the outage to its end, and none while the router was up.
+    # Measured (40 runs of issue 40 at load average 9-36, `fxswarm router`): held the outage's
+    # ticks less 33-50, over outages of 137-1328 ticks; a world that holds none fails here (less
+    # 100 allowed: twice silent_hold). zenohd came back within 20 ticks, before any robot was held.
+    # (The error's growth is no such check: without an outage the error between 10 and 20 s still
+    # exceeded the error before 10 s, 1.73 m against 1.58 m, as paper-fast's obstacles come.)
+    held, hold_ticks = summary["degraded"]["ticks"], round(DegradedLimits.silent_hold / swarm.scenario.dt)
+    assert outage["ticks"] - 2 * hold_ticks <= held <= outage["ticks"], (held, outage)
+    # And the formation recovered: the final error 0.015-0.226 m in 40 runs at load average 9-36,
+    # and at most 0.232 m over the last 2 s (the law's chatter under load: the last tick samples
+    # it). 0.5 m is 2.2x the worst; a swarm that does not recover stays meters off (3.0-31.6 m
+    # during those outages).
+    assert summary["formation_error_final_m"] <= 0.5, summary["formation_error_final_m"]
 
 
 @pytest.mark.parametrize("protected", [True, False], ids=["secure", "rules-off"])
