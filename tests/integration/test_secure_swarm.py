@@ -309,7 +309,7 @@ def test_secure_lockstep_equals_the_in_memory_sim_bit_for_bit(launch_swarm, keys
     # as observer. (Not in the --audit run above: there the router's trace log can slow its answers.)
     assert health(swarm, keys, "agent", "3").returncode == 0
     assert health(swarm, keys, "router", "0", "--as", "observer").returncode == 0
-    assert swarm.swarm.children["world"].running() and swarm.sim_time() < 0, "the world ticked before the checks were done"
+    assert swarm.swarm.children["world"].running() and swarm.sim_time() < 0, "the world ticked before the checks"
     gate = open_gate(swarm, keys)
     try:
         swarm.wait_for_sim_time(0.1)
