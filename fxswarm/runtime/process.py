@@ -39,7 +39,7 @@ from fxswarm.runtime.files import write_atomic
 from fxswarm.runtime.numbers import non_negative, positive
 from fxswarm.runtime.output import prepare_run_folder
 from fxswarm.runtime.config import process_plan_or_exit
-from fxswarm.runtime.liveness import Liveness
+from fxswarm.runtime.liveness import REJOIN_S, Liveness
 from fxswarm.runtime.tls import identity
 from fxswarm.runtime.zenoh_bus import (ConnectError, ZenohBus, add_zenoh_arguments, log_zenoh_warnings,
                                        options_from_args, wait_until)
@@ -74,6 +74,9 @@ def add_process_arguments(p: argparse.ArgumentParser) -> None:
                    help="agents, leader, logger: how long to wait for a world that is gone without having "
                         "ended the run (a network cut longer than the Zenoh lease, a frozen or crashed world) "
                         f"before giving up, exit status 1 (default {DEFAULT_WORLD_TIMEOUT_S:g}; 0: forever)")
+    p.add_argument("--rejoin-timeout", type=positive, default=REJOIN_S, metavar="S",
+                   help="how long a process that went with a router is waited for (lock-step: the tick held) "
+                        f"before it counts as gone (default {REJOIN_S:g})")
     add_zenoh_arguments(p)
 
 
@@ -109,7 +112,7 @@ class RoleProcess:
         # Real time: a message older than --stale-after simulation s is counted stale.
         self.clock = SimClock(args.speed, args.stale_after if args.stale_after is not None else 5 * scenario.dt)
         # Tokens up (role/id) and judged gone; and who went with a router (fxswarm.runtime.liveness).
-        self.liveness = Liveness(wall_clock)
+        self.liveness = Liveness(wall_clock, rejoin_s=args.rejoin_timeout)
         self.alive, self.gone = self.liveness.alive, self.liveness.gone
         self.run_over = False  # the world's RUN_OVER token was seen: the run is over, this process leaves
         self.world_lost: Deadline | None = None  # running while the world is gone without ending the run

@@ -2,9 +2,9 @@
 
 It listens where a swarm's processes look for a router when theirs is lost (the next endpoint
 they list) with a certificate of the swarm's CA that is not the ``router``'s (a stolen robot's
-key), and no rules. It counts every sample it hears under the swarm's prefix (but its own) and, four times a
-second, puts a forged ``Command`` for robot 1 (what the world would apply). On SIGTERM it prints
-one JSON line: ``{"heard": n, "forged": m}``.
+key), and no rules. It counts every sample it hears under the swarm's prefix (but its own), saying
+``heard`` on a line of its own at the first, and, four times a second, puts a forged ``Command`` for
+robot 1 (what the world would apply). On SIGTERM it prints one JSON line: ``{"heard": n, "forged": m}``.
 """
 
 from __future__ import annotations
@@ -41,6 +41,8 @@ def main() -> None:
         def on_sample(sample) -> None:  # not its own forgeries, which its session hands back to it
             if not str(sample.key_expr).endswith("/agent/1/cmd"):
                 heard[0] += 1
+                if heard[0] == 1:  # the event a test waits for
+                    print("heard", flush=True)
 
         session.declare_subscriber(f"{root}/**", on_sample)
         print("rogue up", flush=True)

@@ -150,6 +150,7 @@ def test_secure_failover_gets_nothing_through_a_rogue_router(tmp_path, protected
     commands never land. With those rules off the same rogue hears and forges freely."""
     import subprocess
     import sys
+    import threading
     import time
 
     import zenoh
@@ -172,8 +173,16 @@ def test_secure_failover_gets_nothing_through_a_rogue_router(tmp_path, protected
     rogue = subprocess.Popen([sys.executable, "tests/integration/rogue_router.py", "--listen", rogue_ep,
                               "--swarm", swarm, "--tls", json.dumps(stolen)], stdout=subprocess.PIPE, text=True)
     session = None
+    said: list[str] = []  # the rogue's lines after "rogue up": "heard" at its first sample, its report at the end
+
+    def read_rogue() -> None:
+        for line in rogue.stdout:
+            said.append(line.strip())
+
+    reader = threading.Thread(target=read_rogue, daemon=True)
     try:
         assert rogue.stdout.readline().strip() == "rogue up"
+        reader.start()
         options = ZenohOptions("client", (real_ep, rogue_ep), (), False, connect_timeout_ms=60_000,
                                tls=checked(keys, "world"))
         if protected:
@@ -196,10 +205,12 @@ def test_secure_failover_gets_nothing_through_a_rogue_router(tmp_path, protected
         while (now := router_now()) in ([], first):  # failed over (a TLS link to the rogue) or not yet
             assert time.monotonic() < end, "the client never linked to the next router it lists"
             time.sleep(0.05)
-        # Put what the world puts, and watch for forged commands: the rogue forges 4 a second.
+        # Put what the world puts, and watch for forged commands: the rogue forges 4 a second. With
+        # the rules off, until a forgery has landed and the rogue has heard a put (stopping at the
+        # first landing alone once left it nothing heard: its forgery can come before it hears).
         linked = time.monotonic()
         end = linked + (4.0 if protected else 30.0)
-        while time.monotonic() < end and (protected or not landed):
+        while time.monotonic() < end and (protected or not (landed and "heard" in said)):
             session.put(f"fxswarm/{swarm}/world/sense/1", b"not for a rogue")
             time.sleep(0.05)
     finally:
@@ -207,9 +218,11 @@ def test_secure_failover_gets_nothing_through_a_rogue_router(tmp_path, protected
             session.close()
         real.kill()
         rogue.terminate()
-        report = json.loads(rogue.stdout.readlines()[-1])
         rogue.wait(10)
         real.wait(10)
+        if reader.is_alive():
+            reader.join(10)
+    report = json.loads(said[-1])
     if protected:  # it forged all along the 4 s after the failover, and none landed; it heard none of the client's puts
         during = [t for t in report["forged_at"] if linked <= t <= end]
         assert len(during) >= 4 and landed == [] and report["heard"] == 0, (len(during), len(landed), report)

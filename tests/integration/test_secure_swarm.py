@@ -75,9 +75,15 @@ def start_when_ready(swarm, keys: Path, ready: Path, proc: subprocess.Popen):
     """Once ``proc`` (an attacker) has written ``ready``, declare ``observer/0``, which the world's
     clock waits for; returns that observer session (close it once the world has what it needs from
     it: while it is there, the world serves its record after the run, up to 60 s)."""
+    wait_until_ready(ready, proc, lambda: time.sleep(0.05))
+    return open_gate(swarm, keys)
+
+
+def open_gate(swarm, keys: Path):
+    """A session with the observer's key that declares ``observer/0`` (``--wait-for observer/0``:
+    the world's clock starts); close it once the world's clock runs."""
     from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions
 
-    wait_until_ready(ready, proc, lambda: time.sleep(0.05))
     gate = ZenohBus(swarm.swarm.swarm, ZenohOptions("client", (swarm.swarm.endpoint,), (), False,
                                                     tls=files_for(keys, "observer")))
     gate.declare_alive("observer", 0)
@@ -270,10 +276,12 @@ def listening_ports(pid: int) -> set[int]:
 @pytest.mark.parametrize("topology", [None, "routed"])
 def test_secure_lockstep_equals_the_in_memory_sim_bit_for_bit(launch_swarm, keys, topology):
     """Secure, as a plain run: a mesh for these 6 robots unless told routed."""
-    # 90 s of flight: the checks below need every process alive, and lock-step flies about 4x faster
-    # than real time while the probes and health checks (each a new Python process) take seconds;
-    # 30 s once ended before the last health check on a clean clone.
-    swarm = launch_swarm(SCENARIO, secure=keys, duration=90.0, topology=topology)
+    # The checks below need every process alive while the probes and health checks (each a new
+    # Python process) take seconds: the world's clock waits for ``observer/0``, declared once they
+    # are done, so the run need only be long enough to compare (flown before the checks, 30 s of it
+    # once ended before the last health check on a clean clone).
+    swarm = launch_swarm(SCENARIO, secure=keys, duration=2.0, topology=topology,
+                         world_args=("--wait-for", "observer/0", "--wait-timeout", "600"))
     assert swarm.swarm.topology == (topology or "mesh")
     # Nothing listens in plaintext: routed, the router alone listens, on its TLS port; in a mesh each
     # peer listens too, on TLS, and no process was told tcp/.
@@ -301,7 +309,12 @@ def test_secure_lockstep_equals_the_in_memory_sim_bit_for_bit(launch_swarm, keys
     # as observer. (Not in the --audit run above: there the router's trace log can slow its answers.)
     assert health(swarm, keys, "agent", "3").returncode == 0
     assert health(swarm, keys, "router", "0", "--as", "observer").returncode == 0
-    assert swarm.swarm.children["world"].running(), "the run ended before the checks were done"
+    assert swarm.swarm.children["world"].running() and swarm.sim_time() < 0, "the world ticked before the checks"
+    gate = open_gate(swarm, keys)
+    try:
+        swarm.wait_for_sim_time(0.1)
+    finally:
+        gate.close()  # while it is there, the world serves its record after the run (start_when_ready)
     summary = swarm.wait_done(timeout=300)
     assert summary["complete"]
     swarm.assert_matches_sim()
