@@ -118,11 +118,16 @@ class NearestCache:
     def _rebuild(self, p: np.ndarray) -> None:
         from scipy.spatial import cKDTree
 
-        k = min(self.CACHED + 1, len(p))
+        n = len(p)
+        k = min(self.CACHED + 1, n)
         far, idx = cKDTree(p).query(p, k=k)
+        # each list in ascending id, so that the first of its nearest (argmin) is the lowest id,
+        # the world's tie rule; the robot itself (usually listed) is masked by an infinite distance
+        idx = np.sort(idx, axis=1)
         self.p0, self.idx = p.copy(), idx
+        self._own = np.flatnonzero(idx == np.arange(n)[:, None])
         # every robot not listed was at least this far (the tree's distances, less a rounding margin)
-        self.reach = far[:, -1] * (1.0 - ROUNDING) if k < len(p) else np.full(len(p), np.inf)
+        self.reach = far[:, -1] * (1.0 - ROUNDING) if k < n else np.full(n, np.inf)
         self.rebuilds += 1
 
     def __call__(self, p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, obstacle_v: np.ndarray):
@@ -134,23 +139,26 @@ class NearestCache:
         bound = self.reach - delta - delta.max()  # the nearest any unlisted robot can be now
         objects, object_v, own, obstacle_all, obstacle_dist = _objects(p, v, obstacles, obstacle_v)
         idx = self.idx
-        cand = np.concatenate([np.broadcast_to(np.arange(m), (n, m)), m + idx], axis=1)
-        dist = np.concatenate([obstacle_all, distances(p, p[idx])], axis=1)
-        dist[cand == m + own[:, None]] = np.inf  # a robot is not its own nearest object
-        best = dist.min(axis=1)
+        robot_dist = distances(p, np.take(p, idx, axis=0))
+        robot_dist.flat[self._own] = np.inf  # a robot is not its own nearest object
+        # columns: the obstacles, then the listed robots by id; the first nearest is the lowest object
+        dist = np.concatenate([obstacle_all, robot_dist], axis=1)
+        column = dist.argmin(axis=1)
+        best = np.take_along_axis(dist, column[:, None], axis=1)[:, 0]
         decided = best * (1.0 + ROUNDING) + 1e-300 < bound
         undecided = np.flatnonzero(~decided)
         if len(undecided) > self.REBUILD_SHARE * n + 1:
             self._rebuild(p)
             return self(p, v, obstacles, obstacle_v)
-        key = np.where(dist == best[:, None], cand, np.iinfo(np.intp).max)
-        choice = key.min(axis=1)
+        robot = column >= m
+        choice = np.where(robot, m + np.take_along_axis(idx, np.where(robot, column - m, 0)[:, None], axis=1)[:, 0],
+                          column)
         for i in undecided:  # decide over every object, as the world does
             row = distances(p[i:i + 1], objects[None, :, :])[0]
             row[m + i] = np.inf
             choice[i] = int(row.argmin())
             best[i] = row[choice[i]]
-        return objects[choice], object_v[choice], best, choice < m, obstacle_dist
+        return np.take(objects, choice, axis=0), np.take(object_v, choice, axis=0), best, choice < m, obstacle_dist
 
 
 def _objects(p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, obstacle_v: np.ndarray):
