@@ -24,7 +24,11 @@ ROUNDING = 1e-9
 
 def distances(p: np.ndarray, objects: np.ndarray) -> np.ndarray:
     """``|p_i - objects_ij|`` for p (n, 3) and objects (n, c, 3): the world's formula."""
-    diff = p[:, None, :] - objects
+    return norms(p[:, None, :] - objects)
+
+
+def norms(diff: np.ndarray) -> np.ndarray:
+    """``|diff_ij|`` of differences (n, c, 3), summed as the world sums them (einsum)."""
     return np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
 
 
@@ -126,6 +130,7 @@ class NearestCache:
         idx = np.sort(idx, axis=1)
         self.p0, self.idx = p.copy(), idx
         self._own = np.flatnonzero(idx == np.arange(n)[:, None])
+        self._rows = np.broadcast_to(np.arange(n)[:, None], idx.shape).copy()  # p[rows] - p[idx]: no broadcast
         # every robot not listed was at least this far (the tree's distances, less a rounding margin)
         self.reach = far[:, -1] * (1.0 - ROUNDING) if k < n else np.full(n, np.inf)
         self.rebuilds += 1
@@ -139,7 +144,7 @@ class NearestCache:
         bound = self.reach - delta - delta.max()  # the nearest any unlisted robot can be now
         objects, object_v, own, obstacle_all, obstacle_dist = _objects(p, v, obstacles, obstacle_v)
         idx = self.idx
-        robot_dist = distances(p, np.take(p, idx, axis=0))
+        robot_dist = norms(np.take(p, self._rows, axis=0) - np.take(p, idx, axis=0))  # as distances()
         robot_dist.flat[self._own] = np.inf  # a robot is not its own nearest object
         # columns: the obstacles, then the listed robots by id; the first nearest is the lowest object
         dist = np.concatenate([obstacle_all, robot_dist], axis=1)
@@ -153,11 +158,11 @@ class NearestCache:
         robot = column >= m
         choice = np.where(robot, m + np.take_along_axis(idx, np.where(robot, column - m, 0)[:, None], axis=1)[:, 0],
                           column)
-        for i in undecided:  # decide over every object, as the world does
-            row = distances(p[i:i + 1], objects[None, :, :])[0]
-            row[m + i] = np.inf
-            choice[i] = int(row.argmin())
-            best[i] = row[choice[i]]
+        if len(undecided):  # decided over every object, as the world does
+            rows = distances(p[undecided], np.broadcast_to(objects, (len(undecided),) + objects.shape))
+            rows[np.arange(len(undecided)), m + undecided] = np.inf
+            choice[undecided] = rows.argmin(axis=1)
+            best[undecided] = rows[np.arange(len(undecided)), choice[undecided]]
         return np.take(objects, choice, axis=0), np.take(object_v, choice, axis=0), best, choice < m, obstacle_dist
 
 
