@@ -256,27 +256,21 @@ class BehaviouralBatch:
         rates = self._explicit_rates(ph, p0)
         return rates if vh is None else rates + vh  # eq. (11ff)
 
+    #: Robots summed at a time: a block's (S, block, 3) tables stay in a core's cache.
+    BLOCK = 1024
+
     def _explicit_rates(self, ph: np.ndarray, p0: np.ndarray) -> np.ndarray:
         g = self.estimator
         a1, a2 = g.r3 / g.r4, g.r5 / g.r6
         src = np.concatenate([ph, p0.reshape(1, 3)])
-        S = len(self._src_t)
-        D = ph - np.take(src, self._src_t, axis=0)  # (S, n, 3): robot i's difference to its s-th row
-        W = self._w_t
-        # per slot the weighted difference and, pairwise, w * sig(d, a) for both exponents, then
-        # summed over the slots in the per-robot order: a loop (np.sum would sum pairwise)
-        terms = np.empty((3 if self.pairwise else 1,) + D.shape)
-        np.multiply(W, D, out=terms[0])
+        pw = None
         if self.pairwise:  # |d| ** a of every link and leader row, each computed once
             ad = np.abs(np.take(src, self._ends[0], axis=0) - np.take(src, self._ends[1], axis=0))
             pw = _power_table(ad, a1, a2)
-            np.take(pw, self._table_t, axis=1, out=terms[1:])
-            # copysign(w * |d| ** a, d) as copysign(w, d) * |d| ** a: the same magnitude and sign.
-            # The per-robot form skips d == 0; here its term is +-0, which leaves the sum as it was.
-            np.multiply(terms[1:], np.copysign(W, D), out=terms[1:])
-        total = np.zeros(terms[:, 0].shape)
-        for s in range(S):
-            total += terms[:, s]
+        n = len(ph)
+        total = np.zeros((3 if self.pairwise else 1, n, 3))
+        for lo in range(0, n, self.BLOCK):
+            self._slot_sums(total[:, lo:lo + self.BLOCK], ph, src, pw, slice(lo, lo + self.BLOCK))
         E = total[0]
         if self.pairwise:
             P, Q = total[1], total[2]
@@ -289,6 +283,24 @@ class BehaviouralBatch:
             Q[nz] = np.copysign(powers(ad, a2), e)
         sign = np.where(E > 0.0, g.K3, np.where(E < 0.0, -g.K3, 0.0))
         return -g.K1 * P - g.K2 * Q - sign
+
+    def _slot_sums(self, total: np.ndarray, ph: np.ndarray, src: np.ndarray, pw: np.ndarray | None,
+                   robots: slice) -> None:
+        """Adds to ``total`` (zeros: (1 or 3, b, 3)) the sums of the robots ``robots`` over their
+        slots: the weighted differences and, pairwise, ``w * sig(d, a)`` for both exponents
+        (``pw``: :func:`_power_table`), in the per-robot order: a loop over the slots (np.sum
+        would sum pairwise)."""
+        W = self._w_t[:, robots]
+        D = ph[robots] - np.take(src, self._src_t[:, robots], axis=0)  # (S, b, 3): d to each slot's row
+        terms = np.empty((len(total),) + D.shape)
+        np.multiply(W, D, out=terms[0])
+        if pw is not None:
+            np.take(pw, self._table_t[:, robots], axis=1, out=terms[1:])
+            # copysign(w * |d| ** a, d) as copysign(w, d) * |d| ** a: the same magnitude and sign.
+            # The per-robot form skips d == 0; here its term is +-0, which leaves the sum as it was.
+            np.multiply(terms[1:], np.copysign(W, D), out=terms[1:])
+        for s in range(len(D)):
+            total += terms[:, s]
 
     def observer_rates(self, vh: np.ndarray, v0: np.ndarray) -> np.ndarray:
         """``dvh/dt`` of every robot, (n, 3): eq. (obs), as

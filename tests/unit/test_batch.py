@@ -128,6 +128,18 @@ def test_generated_swarms_batch_equals_per_robot_with_avoidance_and_the_speed_li
     assert sa["speed_limited_ticks"] == sb["speed_limited_ticks"] > 0
 
 
+@pytest.mark.parametrize("power", ["pairwise", "aggregate"])
+def test_robots_summed_in_blocks_batch_equals_per_robot(power, monkeypatch):
+    # large swarms sum their slots a block of robots at a time; blocks of 7 here, some partial
+    from fxswarm.core.paper_law import BehaviouralBatch
+
+    monkeypatch.setattr(BehaviouralBatch, "BLOCK", 7)
+    sc = parse(generated(SWARMS[0], ticks=40, estimator={"power": power}), "gen.toml")
+    assert sc.n % 7
+    _, _, ta, tb = both(sc)
+    assert_same(ta, tb)
+
+
 @pytest.mark.parametrize("law,power", [("asymptotic", "pairwise"), ("finite-time", "aggregate"),
                                        ("fixed-time", "aggregate")])
 def test_other_built_in_families_and_the_aggregate_power_batch_equals_per_robot(law, power):
