@@ -105,8 +105,9 @@ class NearestCache:
     later tick, with ``delta_i`` how far robot i has moved since and ``M`` the most any robot has,
     a robot outside the list is still at least ``R_i - delta_i - M`` away; a robot whose nearest
     candidate (or obstacle) is closer than that, with a margin for rounding, is decided by its
-    list alone, with the world's own distances and tie rule. The others are decided over every
-    object (a few), or, past :data:`REBUILD_SHARE` of the robots, the lists are built again. The
+    list alone, with the world's own distances and tie rule. The others (a few) are decided over
+    the obstacles and the robots the rebuild's tree finds near enough to have come as near, or,
+    past :data:`REBUILD_SHARE` of the robots, the lists are built again. The
     answer is the dense one, bit for bit (tests/unit/test_nearest.py).
     """
 
@@ -118,13 +119,15 @@ class NearestCache:
         self.idx: np.ndarray | None = None
         self.reach: np.ndarray | None = None
         self.rebuilds = 0
+        self.searched = 0  # robots decided off their lists (by the rebuild's tree), all ticks
 
     def _rebuild(self, p: np.ndarray) -> None:
         from scipy.spatial import cKDTree
 
         n = len(p)
         k = min(self.CACHED + 1, n)
-        far, idx = cKDTree(p).query(p, k=k)
+        self.tree = cKDTree(p)
+        far, idx = self.tree.query(p, k=k)
         # each list in ascending id, so that the first of its nearest (argmin) is the lowest id,
         # the world's tie rule; the robot itself (usually listed) is masked by an infinite distance
         idx = np.sort(idx, axis=1)
@@ -158,11 +161,19 @@ class NearestCache:
         robot = column >= m
         choice = np.where(robot, m + np.take_along_axis(idx, np.where(robot, column - m, 0)[:, None], axis=1)[:, 0],
                           column)
-        if len(undecided):  # decided over every object, as the world does
-            rows = distances(p[undecided], np.broadcast_to(objects, (len(undecided),) + objects.shape))
-            rows[np.arange(len(undecided)), m + undecided] = np.inf
-            choice[undecided] = rows.argmin(axis=1)
-            best[undecided] = rows[np.arange(len(undecided)), choice[undecided]]
+        if len(undecided):
+            # Any robot as near as the best candidate (at most best_i away now) was at most best_i +
+            # delta_i + M away at the rebuild: those, from the rebuild's tree, and the obstacles
+            # are decided with the world's distances and tie rule (candidates in ascending id).
+            radius = (best[undecided] + delta[undecided] + delta.max()) * (1.0 + ROUNDING) + 1e-300
+            balls = self.tree.query_ball_point(self.p0[undecided], radius, return_sorted=True)
+            self.searched += len(undecided)
+            for i, ball in zip(undecided.tolist(), balls):
+                ball = np.array(ball, dtype=np.intp)
+                row = np.concatenate([obstacle_all[i], distances(p[i:i + 1], p[None, ball])[0]])
+                row[m:][ball == i] = np.inf  # a robot is not its own nearest object
+                k = int(row.argmin())
+                choice[i], best[i] = (k if k < m else m + ball[k - m]), row[k]
         return np.take(objects, choice, axis=0), np.take(object_v, choice, axis=0), best, choice < m, obstacle_dist
 
 

@@ -80,6 +80,7 @@ def test_the_cached_candidate_lists_give_the_dense_answer_tick_after_tick(monkey
             assert a.tobytes() == b.tobytes(), (tick, name)
         p = p + (3.0 if tick == 20 else 0.05) * v
     assert 2 <= cache.rebuilds < 10  # kept across ticks, rebuilt after the jump
+    assert cache.searched  # some robots were decided off their lists
 
 
 def test_the_world_keeps_candidate_lists_above_the_dense_limit():
