@@ -20,6 +20,8 @@ CANDIDATES = 4
 #: cKDTree's distances and the world's may differ in the last bits: a candidate set is
 #: trusted only if its farthest is farther than the best by more than this (relative).
 ROUNDING = 1e-9
+#: Robots whose candidates' distances are computed at a time: the block's arrays stay in cache.
+BLOCK = 2048
 
 
 def distances(p: np.ndarray, objects: np.ndarray) -> np.ndarray:
@@ -147,7 +149,10 @@ class NearestCache:
         bound = self.reach - delta - delta.max()  # the nearest any unlisted robot can be now
         objects, object_v, own, obstacle_all, obstacle_dist = _objects(p, v, obstacles, obstacle_v)
         idx = self.idx
-        robot_dist = norms(np.take(p, self._rows, axis=0) - np.take(p, idx, axis=0))  # as distances()
+        robot_dist = np.empty(idx.shape)
+        for lo in range(0, n, BLOCK):  # as distances(), a block of robots at a time (in a core's cache)
+            rows = slice(lo, lo + BLOCK)
+            robot_dist[rows] = norms(np.take(p, self._rows[rows], axis=0) - np.take(p, idx[rows], axis=0))
         robot_dist.flat[self._own] = np.inf  # a robot is not its own nearest object
         # columns: the obstacles, then the listed robots by id; the first nearest is the lowest object
         dist = np.concatenate([obstacle_all, robot_dist], axis=1)
