@@ -135,7 +135,8 @@ class NearestCache:
         idx = np.sort(idx, axis=1)
         self.p0, self.idx = p.copy(), idx
         self._own = np.flatnonzero(idx == np.arange(n)[:, None])
-        self._rows = np.broadcast_to(np.arange(n)[:, None], idx.shape).copy()  # p[rows] - p[idx]: no broadcast
+        self._robots = np.arange(n)
+        self._rows = np.broadcast_to(self._robots[:, None], idx.shape).copy()  # p[rows] - p[idx]: no broadcast
         # every robot not listed was at least this far (the tree's distances, less a rounding margin)
         self.reach = far[:, -1] * (1.0 - ROUNDING) if k < n else np.full(n, np.inf)
         self.rebuilds += 1
@@ -145,7 +146,7 @@ class NearestCache:
         if self.p0 is None or self.p0.shape != p.shape:
             self._rebuild(p)
         moved = p - self.p0
-        delta = np.sqrt(moved[:, 0] * moved[:, 0] + moved[:, 1] * moved[:, 1] + moved[:, 2] * moved[:, 2])
+        delta = np.sqrt(np.einsum("ij,ij->i", moved, moved))  # for the bound only (margins of ROUNDING)
         bound = self.reach - delta - delta.max()  # the nearest any unlisted robot can be now
         objects, object_v, own, obstacle_all, obstacle_dist = _objects(p, v, obstacles, obstacle_v)
         idx = self.idx
@@ -157,15 +158,15 @@ class NearestCache:
         # columns: the obstacles, then the listed robots by id; the first nearest is the lowest object
         dist = np.concatenate([obstacle_all, robot_dist], axis=1)
         column = dist.argmin(axis=1)
-        best = np.take_along_axis(dist, column[:, None], axis=1)[:, 0]
+        robots = self._robots
+        best = dist[robots, column]
         decided = best * (1.0 + ROUNDING) + 1e-300 < bound
         undecided = np.flatnonzero(~decided)
         if len(undecided) > self.REBUILD_SHARE * n + 1:
             self._rebuild(p)
             return self(p, v, obstacles, obstacle_v)
         robot = column >= m
-        choice = np.where(robot, m + np.take_along_axis(idx, np.where(robot, column - m, 0)[:, None], axis=1)[:, 0],
-                          column)
+        choice = np.where(robot, m + idx[robots, np.where(robot, column - m, 0)], column)
         if len(undecided):
             # Any robot as near as the best candidate (at most best_i away now) was at most best_i +
             # delta_i + M away at the rebuild: those, from the rebuild's tree, and the obstacles
