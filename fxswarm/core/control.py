@@ -21,7 +21,6 @@ check that one against.
 
 from __future__ import annotations
 
-import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -97,14 +96,17 @@ class ControlOutput(NamedTuple):
 
 
 def powers(x, a: float):
-    """``x ** a`` for each float of the array ``x`` (>= 0), as a float64 array: Python's float
-    power, the C library's ``pow``, element by element. The batch form of the law
+    """``x ** a`` for each float of the array ``x`` (>= 0), as a float64 array: the C library's
+    ``pow`` element by element, as Python's float ``**`` calls it. The batch form of the law
     (fxswarm.core.paper_law.BehaviouralBatch) raises with this, the per-robot form with ``**``:
-    the same function on the same numbers. Not ``np.power``: numpy may dispatch it to a
-    vectorised pow that differs in the last bit (docs/design.md "Bit for bit: batch and per robot")."""
+    the same function on the same numbers. ``np.float_power``'s float64 loop calls ``pow`` per
+    element (about 10 ns); not ``np.power``, which numpy may dispatch to a vectorised pow that
+    differs in the last bit (docs/design.md "Bit for bit: batch and per robot";
+    tests/unit/test_batch.py checks the two agree). Where ``**`` would raise OverflowError this
+    gives inf (numpy's overflow flag: an error under ``np.errstate(over="raise")``)."""
     import numpy as np  # the per-robot hot path above stays numpy-free
 
-    return np.fromiter(map(pow, x.tolist(), itertools.repeat(a)), dtype=float, count=len(x))
+    return np.float_power(x, a)
 
 
 def dot3(a: Vec, b: Vec) -> float:

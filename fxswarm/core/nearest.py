@@ -20,11 +20,17 @@ CANDIDATES = 4
 #: cKDTree's distances and the world's may differ in the last bits: a candidate set is
 #: trusted only if its farthest is farther than the best by more than this (relative).
 ROUNDING = 1e-9
+#: Robots whose candidates' distances are computed at a time: the block's arrays stay in cache.
+BLOCK = 2048
 
 
 def distances(p: np.ndarray, objects: np.ndarray) -> np.ndarray:
     """``|p_i - objects_ij|`` for p (n, 3) and objects (n, c, 3): the world's formula."""
-    diff = p[:, None, :] - objects
+    return norms(p[:, None, :] - objects)
+
+
+def norms(diff: np.ndarray) -> np.ndarray:
+    """``|diff_ij|`` of differences (n, c, 3), summed as the world sums them (einsum)."""
     return np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
 
 
@@ -101,8 +107,9 @@ class NearestCache:
     later tick, with ``delta_i`` how far robot i has moved since and ``M`` the most any robot has,
     a robot outside the list is still at least ``R_i - delta_i - M`` away; a robot whose nearest
     candidate (or obstacle) is closer than that, with a margin for rounding, is decided by its
-    list alone, with the world's own distances and tie rule. The others are decided over every
-    object (a few), or, past :data:`REBUILD_SHARE` of the robots, the lists are built again. The
+    list alone, with the world's own distances and tie rule. The others (a few) are decided over
+    the obstacles and the robots the rebuild's tree finds near enough to have come as near, or,
+    past :data:`REBUILD_SHARE` of the robots, the lists are built again. The
     answer is the dense one, bit for bit (tests/unit/test_nearest.py).
     """
 
@@ -114,15 +121,24 @@ class NearestCache:
         self.idx: np.ndarray | None = None
         self.reach: np.ndarray | None = None
         self.rebuilds = 0
+        self.searched = 0  # robots decided off their lists (by the rebuild's tree), all ticks
 
     def _rebuild(self, p: np.ndarray) -> None:
         from scipy.spatial import cKDTree
 
-        k = min(self.CACHED + 1, len(p))
-        far, idx = cKDTree(p).query(p, k=k)
+        n = len(p)
+        k = min(self.CACHED + 1, n)
+        self.tree = cKDTree(p)
+        far, idx = self.tree.query(p, k=k)
+        # each list in ascending id, so that the first of its nearest (argmin) is the lowest id,
+        # the world's tie rule; the robot itself (usually listed) is masked by an infinite distance
+        idx = np.sort(idx, axis=1)
         self.p0, self.idx = p.copy(), idx
+        self._own = np.flatnonzero(idx == np.arange(n)[:, None])
+        self._robots = np.arange(n)
+        self._rows = np.broadcast_to(self._robots[:, None], idx.shape).copy()  # p[rows] - p[idx]: no broadcast
         # every robot not listed was at least this far (the tree's distances, less a rounding margin)
-        self.reach = far[:, -1] * (1.0 - ROUNDING) if k < len(p) else np.full(len(p), np.inf)
+        self.reach = far[:, -1] * (1.0 - ROUNDING) if k < n else np.full(n, np.inf)
         self.rebuilds += 1
 
     def __call__(self, p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, obstacle_v: np.ndarray):
@@ -130,27 +146,41 @@ class NearestCache:
         if self.p0 is None or self.p0.shape != p.shape:
             self._rebuild(p)
         moved = p - self.p0
-        delta = np.sqrt(moved[:, 0] * moved[:, 0] + moved[:, 1] * moved[:, 1] + moved[:, 2] * moved[:, 2])
+        delta = np.sqrt(np.einsum("ij,ij->i", moved, moved))  # for the bound only (margins of ROUNDING)
         bound = self.reach - delta - delta.max()  # the nearest any unlisted robot can be now
         objects, object_v, own, obstacle_all, obstacle_dist = _objects(p, v, obstacles, obstacle_v)
         idx = self.idx
-        cand = np.concatenate([np.broadcast_to(np.arange(m), (n, m)), m + idx], axis=1)
-        dist = np.concatenate([obstacle_all, distances(p, p[idx])], axis=1)
-        dist[cand == m + own[:, None]] = np.inf  # a robot is not its own nearest object
-        best = dist.min(axis=1)
+        robot_dist = np.empty(idx.shape)
+        for lo in range(0, n, BLOCK):  # as distances(), a block of robots at a time (in a core's cache)
+            rows = slice(lo, lo + BLOCK)
+            robot_dist[rows] = norms(np.take(p, self._rows[rows], axis=0) - np.take(p, idx[rows], axis=0))
+        robot_dist.flat[self._own] = np.inf  # a robot is not its own nearest object
+        # columns: the obstacles, then the listed robots by id; the first nearest is the lowest object
+        dist = np.concatenate([obstacle_all, robot_dist], axis=1)
+        column = dist.argmin(axis=1)
+        robots = self._robots
+        best = dist[robots, column]
         decided = best * (1.0 + ROUNDING) + 1e-300 < bound
         undecided = np.flatnonzero(~decided)
         if len(undecided) > self.REBUILD_SHARE * n + 1:
             self._rebuild(p)
             return self(p, v, obstacles, obstacle_v)
-        key = np.where(dist == best[:, None], cand, np.iinfo(np.intp).max)
-        choice = key.min(axis=1)
-        for i in undecided:  # decide over every object, as the world does
-            row = distances(p[i:i + 1], objects[None, :, :])[0]
-            row[m + i] = np.inf
-            choice[i] = int(row.argmin())
-            best[i] = row[choice[i]]
-        return objects[choice], object_v[choice], best, choice < m, obstacle_dist
+        robot = column >= m
+        choice = np.where(robot, m + idx[robots, np.where(robot, column - m, 0)], column)
+        if len(undecided):
+            # Any robot as near as the best candidate (at most best_i away now) was at most best_i +
+            # delta_i + M away at the rebuild: those, from the rebuild's tree, and the obstacles
+            # are decided with the world's distances and tie rule (candidates in ascending id).
+            radius = (best[undecided] + delta[undecided] + delta.max()) * (1.0 + ROUNDING) + 1e-300
+            balls = self.tree.query_ball_point(self.p0[undecided], radius, return_sorted=True)
+            self.searched += len(undecided)
+            for i, ball in zip(undecided.tolist(), balls):
+                ball = np.array(ball, dtype=np.intp)
+                row = np.concatenate([obstacle_all[i], distances(p[i:i + 1], p[None, ball])[0]])
+                row[m:][ball == i] = np.inf  # a robot is not its own nearest object
+                k = int(row.argmin())
+                choice[i], best[i] = (k if k < m else m + ball[k - m]), row[k]
+        return np.take(objects, choice, axis=0), np.take(object_v, choice, axis=0), best, choice < m, obstacle_dist
 
 
 def _objects(p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, obstacle_v: np.ndarray):

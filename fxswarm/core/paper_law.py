@@ -175,8 +175,9 @@ class BehaviouralBatch:
 
     The same law, operation for operation: each robot's sums run over its rows in the
     per-robot order (a loop over neighbour slots, vectorised across robots), every power is
-    :func:`fxswarm.core.control.powers` (the C library's pow, as ``**`` in the per-robot form),
-    and the rest is elementwise +, -, *, /, sqrt, correctly rounded in both. So its
+    :func:`fxswarm.core.control.powers` (``np.float_power``: the C library's pow element by
+    element, as ``**`` in the per-robot form), and the rest is elementwise +, -, *, /, sqrt,
+    correctly rounded in both. So its
     trajectories equal the per-robot path's bit for bit (tests/unit/test_batch.py).
 
     With ``tracking = "feedforward"`` the leader-velocity observer, eq. (obs), and eqs. (11ff),
@@ -211,8 +212,6 @@ class BehaviouralBatch:
             self.observer, self._observer = sc.observer, (o_slots, o_weights, o_valid)
         self.slots, self.weights, self.valid = slots, weights, valid
         self.pairwise = sc.estimator.power != "aggregate"
-        # per slot: the robots that have a row there (all of them for the first slots, typically)
-        self._rows = [None if valid[:, s].all() else np.flatnonzero(valid[:, s]) for s in range(slots.shape[1])]
         # Pairwise powers once per link: robot i's |ph_i - ph_j| is robot j's |ph_j - ph_i|, the
         # same float (IEEE subtraction is antisymmetric), so its powers are the same too. Table of
         # |differences|: the undirected links (i < j), then each pinned robot's to the leader.
@@ -224,10 +223,20 @@ class BehaviouralBatch:
         links, inverse = np.unique(lo * n + hi, return_inverse=True)
         self._link_i, self._link_j = links // n, links % n
         self._pinned = i_idx[~robot]
-        table = np.zeros(slots.shape, dtype=np.intp)
+        # Slot-major (S, n, 3) tables, full size (numpy's loops are slow on a broadcast axis of 3).
+        # An empty slot reads the robot's own estimate with weight 0 and a zero power (the power
+        # table's last row): its terms are +-0, which leave a sum as it was (a sum started at +0 is
+        # never -0), as the per-robot form's absent row.
+        own = np.broadcast_to(np.arange(n)[:, None], slots.shape)
+        self._src_t = np.ascontiguousarray(np.where(valid, slots, own).T)
+        self._w_t = np.ascontiguousarray(np.repeat(np.where(valid, weights, 0.0).T[:, :, None], 3, axis=2))
+        table = np.full(slots.shape, len(links) + len(self._pinned), dtype=np.intp)
         table[i_idx[robot], s_idx[robot]] = inverse
         table[i_idx[~robot], s_idx[~robot]] = len(links) + np.arange(len(self._pinned))
-        self._table = table
+        self._table_t = np.ascontiguousarray(table.T)
+        # the two ends of each row of the power table: links, then pinned robots and the leader (n)
+        self._ends = (np.concatenate([self._link_i, self._pinned]),
+                      np.concatenate([self._link_j, np.full(len(self._pinned), n)]))
 
     def estimate_rates(self, ph: np.ndarray, p0: np.ndarray, dt: float = 0.0,
                        vh: np.ndarray | None = None) -> np.ndarray:
@@ -247,37 +256,26 @@ class BehaviouralBatch:
         rates = self._explicit_rates(ph, p0)
         return rates if vh is None else rates + vh  # eq. (11ff)
 
+    #: Robots summed at a time: a block's (S, block, 3) tables stay in a core's cache.
+    BLOCK = 1024
+
     def _explicit_rates(self, ph: np.ndarray, p0: np.ndarray) -> np.ndarray:
         g = self.estimator
         a1, a2 = g.r3 / g.r4, g.r5 / g.r6
-        n = len(ph)
         src = np.concatenate([ph, p0.reshape(1, 3)])
-        P, Q, E = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+        pw = None
         if self.pairwise:  # |d| ** a of every link and leader row, each computed once
-            ad = np.abs(np.concatenate([ph[self._link_i] - ph[self._link_j], ph[self._pinned] - p0]))
-            nz = ad != 0.0
-            pow1, pow2 = np.zeros_like(ad), np.zeros_like(ad)
-            pow1[nz] = powers(ad[nz], a1)
-            pow2[nz] = powers(ad[nz], a2)
-        for s, rows in enumerate(self._rows):
-            if rows is None:
-                X, Y, W, at = ph, src[self.slots[:, s]], self.weights[:, s, None], self._table[:, s]
-            else:
-                X, Y, W, at = ph[rows], src[self.slots[rows, s]], self.weights[rows, s, None], self._table[rows, s]
-            D = X - Y
-            if rows is None:
-                E = E + W * D
-            else:
-                E[rows] = E[rows] + W * D
-            if self.pairwise:  # w * sig(d, a) where d != 0, added in the same order
-                nz = D != 0.0
-                if rows is None:
-                    P = np.where(nz, P + np.copysign(W * pow1[at], D), P)
-                    Q = np.where(nz, Q + np.copysign(W * pow2[at], D), Q)
-                else:
-                    P[rows] = np.where(nz, P[rows] + np.copysign(W * pow1[at], D), P[rows])
-                    Q[rows] = np.where(nz, Q[rows] + np.copysign(W * pow2[at], D), Q[rows])
-        if not self.pairwise:
+            ad = np.abs(np.take(src, self._ends[0], axis=0) - np.take(src, self._ends[1], axis=0))
+            pw = _power_table(ad, a1, a2)
+        n = len(ph)
+        total = np.zeros((3 if self.pairwise else 1, n, 3))
+        for lo in range(0, n, self.BLOCK):
+            self._slot_sums(total[:, lo:lo + self.BLOCK], ph, src, pw, slice(lo, lo + self.BLOCK))
+        E = total[0]
+        if self.pairwise:
+            P, Q = total[1], total[2]
+        else:
+            P, Q = np.zeros_like(E), np.zeros_like(E)
             nz = E != 0.0
             e = E[nz]
             ad = np.abs(e)
@@ -285,6 +283,24 @@ class BehaviouralBatch:
             Q[nz] = np.copysign(powers(ad, a2), e)
         sign = np.where(E > 0.0, g.K3, np.where(E < 0.0, -g.K3, 0.0))
         return -g.K1 * P - g.K2 * Q - sign
+
+    def _slot_sums(self, total: np.ndarray, ph: np.ndarray, src: np.ndarray, pw: np.ndarray | None,
+                   robots: slice) -> None:
+        """Adds to ``total`` (zeros: (1 or 3, b, 3)) the sums of the robots ``robots`` over their
+        slots: the weighted differences and, pairwise, ``w * sig(d, a)`` for both exponents
+        (``pw``: :func:`_power_table`), in the per-robot order: a loop over the slots (np.sum
+        would sum pairwise)."""
+        W = self._w_t[:, robots]
+        D = ph[robots] - np.take(src, self._src_t[:, robots], axis=0)  # (S, b, 3): d to each slot's row
+        terms = np.empty((len(total),) + D.shape)
+        np.multiply(W, D, out=terms[0])
+        if pw is not None:
+            np.take(pw, self._table_t[:, robots], axis=1, out=terms[1:])
+            # copysign(w * |d| ** a, d) as copysign(w, d) * |d| ** a: the same magnitude and sign.
+            # The per-robot form skips d == 0; here its term is +-0, which leaves the sum as it was.
+            np.multiply(terms[1:], np.copysign(W, D), out=terms[1:])
+        for s in range(len(D)):
+            total += terms[:, s]
 
     def observer_rates(self, vh: np.ndarray, v0: np.ndarray) -> np.ndarray:
         """``dvh/dt`` of every robot, (n, 3): eq. (obs), as
@@ -371,6 +387,18 @@ class BehaviouralBatch:
             s = _dot(ua, vf) / u2
             v[active] = v_io + vf - ua * s[:, None]  # eq. (v)
         return v, active
+
+
+def _power_table(ad: np.ndarray, a1: float, a2: float) -> np.ndarray:
+    """(2, L + 1, 3): ``ad ** a1`` and ``ad ** a2`` (:func:`fxswarm.core.control.powers`), 0
+    where ``ad`` is 0 (``pow(0, a)`` is 0 only for a > 0), and a last row of zeros: the power of
+    an empty slot."""
+    out = np.zeros((2, len(ad) + 1, 3))
+    for k, a in enumerate((a1, a2)):
+        out[k, :-1] = powers(ad, a)
+        if not a > 0.0:
+            out[k, :-1][ad == 0.0] = 0.0
+    return out
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:

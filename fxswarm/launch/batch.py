@@ -124,11 +124,16 @@ class BatchRun:
             try:
                 # eqs. (11ff), (v2ff) on vh(k) with feedforward; then eq. (obs) steps vh, as AgentNode.act
                 vh = self.vh if law.feedforward else None
-                dph = law.estimate_rates(ph, p0, dt, vh)
-                reference = vh if vh is not None and not law.semi_implicit else None  # eq. (v2ff): explicit only
-                v, avoid = law.velocities(p, ph, dph, offset, offset_rate, po, vo, sensed, reference, dt)
-            except ArithmeticError as exc:  # a power overflowed: per robot, that robot's law_error
-                raise BatchUnsupported(f"a law raised {type(exc).__name__} at tick {k} (law_error)") from None
+                # an overflow (a power, where ** raises OverflowError) raises here, as per robot
+                with np.errstate(over="raise"):
+                    dph = law.estimate_rates(ph, p0, dt, vh)
+                    reference = vh if vh is not None and not law.semi_implicit else None  # eq. (v2ff): explicit only
+                    v, avoid = law.velocities(p, ph, dph, offset, offset_rate, po, vo, sensed, reference, dt)
+                    if vh is not None:  # eq. (obs) on vh(k), for tick k + 1
+                        vh_next = vh + dt * law.observer_rates(vh, np.asarray(sc.leader.velocity(t), dtype=float))
+            except ArithmeticError as exc:  # per robot, that robot's law_error
+                what = "an overflow" if isinstance(exc, FloatingPointError) else type(exc).__name__
+                raise BatchUnsupported(f"a law raised {what} at tick {k} (law_error)") from None
             if not (np.isfinite(dph).all() and np.isfinite(v).all()):
                 raise BatchUnsupported(f"a law gave a non-finite value at tick {k} (law_error)")
             if v_max is not None:  # the node's speed limit, as limit_speed
@@ -144,8 +149,7 @@ class BatchRun:
             world.tick += 1
             self.ph = ph + dt * dph  # explicit Euler (SPEC 7), as AgentNode.act
             if vh is not None:
-                v0 = np.asarray(sc.leader.velocity(t), dtype=float)
-                self.vh = vh + dt * law.observer_rates(vh, v0)
+                self.vh = vh_next
             now = time.perf_counter()
             if progress is not None and now - last > 0.5:
                 progress(world, world.tick / (now - start))

@@ -60,6 +60,35 @@ def test_every_shipped_config_batch_equals_per_robot_or_falls_back_saying_why(pa
         json.dumps({k: v for k, v in sb.items() if k not in own})
 
 
+def law_exponents() -> set[float]:
+    """Every exponent the built-in laws raise to on the shipped configs and the generated swarms."""
+    from fxswarm.core.paper_law import FAMILIES, variant_gains
+
+    out = set()
+    for gains in [GAINS] + [sc.raw["gains"] for sc in map(load, CONFIGS) if "gains" in sc.raw]:
+        for family in FAMILIES:
+            g = {k: float(v) for k, v in variant_gains(gains, family).items() if k.startswith("r")}
+            out |= {g["r0"], g["r1"], g["r2"], g["r3"] / g["r4"], g["r5"] / g["r6"]}
+    return out
+
+
+def test_the_batch_power_is_the_per_robot_power_bit_for_bit():
+    # control.powers (np.float_power: the C library's pow per element) must give exactly the
+    # bits of Python's ** for every float: a numpy that vectorised float_power would part the paths.
+    from fxswarm.core.control import powers
+
+    rng = np.random.default_rng(38)
+    x = np.concatenate([rng.uniform(0.0, 30.0, 100_000), rng.uniform(0.0, 1e-3, 20_000),
+                        10.0 ** rng.uniform(-300.0, 30.0, 20_000), [0.0, 5e-324, 1.0, 2.0, 1e10]])
+    exponents = law_exponents() | {0.5, 0.7, 1.3, 1.5, 2.2}
+    assert len(exponents) > 6
+    for a in sorted(exponents):
+        want = np.array([v ** a for v in x.tolist()])
+        got = powers(x, a)
+        differ = np.flatnonzero(got.view(np.int64) != want.view(np.int64))
+        assert not len(differ), f"{len(differ)} of {len(x)} differ for a = {a}, e.g. x = {x[differ[0]]!r}"
+
+
 LEADER = {"kind": "helix", "centre": [0.0, 0.0, 0.0], "radius": 2.0, "rate": 0.05, "climb": 0.5}
 GAINS = {"b1": 0.6, "b2": 0.6, "r0": 0.9, "r1": 1.2, "r2": 0.6, "lam_f": 1.0, "lam_o": 1.0,
          "K1": 0.4, "K2": 0.6, "K3": 1.0, "r3": 6.0, "r4": 5.0, "r5": 3.0, "r6": 5.0}
@@ -97,6 +126,18 @@ def test_generated_swarms_batch_equals_per_robot_with_avoidance_and_the_speed_li
     assert_same(ta, tb)
     assert ta["avoid_active"].any(), "the run never entered a repulsive zone: the test would not see that branch"
     assert sa["speed_limited_ticks"] == sb["speed_limited_ticks"] > 0
+
+
+@pytest.mark.parametrize("power", ["pairwise", "aggregate"])
+def test_robots_summed_in_blocks_batch_equals_per_robot(power, monkeypatch):
+    # large swarms sum their slots a block of robots at a time; blocks of 7 here, some partial
+    from fxswarm.core.paper_law import BehaviouralBatch
+
+    monkeypatch.setattr(BehaviouralBatch, "BLOCK", 7)
+    sc = parse(generated(SWARMS[0], ticks=40, estimator={"power": power}), "gen.toml")
+    assert sc.n % 7
+    _, _, ta, tb = both(sc)
+    assert_same(ta, tb)
 
 
 @pytest.mark.parametrize("law,power", [("asymptotic", "pairwise"), ("finite-time", "aggregate"),
@@ -259,7 +300,7 @@ def test_a_power_overflow_on_the_batch_path_runs_it_again_per_robot(capsys):
     want_summary = want.run()
     sim = Simulation(sc, path="auto")
     summary = sim.run()
-    assert summary["path"] == "per-robot" and "OverflowError" in summary["path_reason"]
+    assert summary["path"] == "per-robot" and "overflow" in summary["path_reason"]
     assert "running again per robot" in capsys.readouterr().err
     assert want_summary["law"]["errors"] and summary["law"] == want_summary["law"]
     assert_same(want.trajectory(), sim.trajectory())

@@ -66,8 +66,10 @@ def test_without_scipy_the_world_computes_the_same_in_blocks_of_rows(monkeypatch
 
 
 def test_the_cached_candidate_lists_give_the_dense_answer_tick_after_tick(monkeypatch):
+    from fxswarm.core import nearest
     from fxswarm.core.nearest import NearestCache
 
+    monkeypatch.setattr(nearest, "BLOCK", 97)  # candidates' distances in blocks of robots, one partial
     rng = np.random.default_rng(4)
     p = lattice(500)  # exact ties at first, then random steps; a jump forces lists to be rebuilt
     obstacles, obstacle_v = np.array([[10.0, 10.0, 0.5], [30.0, 4.0, 0.0]]), np.zeros((2, 3))
@@ -80,6 +82,7 @@ def test_the_cached_candidate_lists_give_the_dense_answer_tick_after_tick(monkey
             assert a.tobytes() == b.tobytes(), (tick, name)
         p = p + (3.0 if tick == 20 else 0.05) * v
     assert 2 <= cache.rebuilds < 10  # kept across ticks, rebuilt after the jump
+    assert cache.searched  # some robots were decided off their lists
 
 
 def test_the_world_keeps_candidate_lists_above_the_dense_limit():
