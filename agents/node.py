@@ -24,7 +24,7 @@ from fxswarm.core import bus as topics
 from fxswarm.core.control import in_repulsive_zone
 from fxswarm.core.laws import LawView, checked_vector, describe_failure, limit_speed, make_law, resolve_law
 from fxswarm.core.messages import Command, Estimate, LeaderState, Message, Sense
-from fxswarm.core.observer import observer_weights, velocity_observer_rate
+from fxswarm.core.observer import observer_links, velocity_observer_rate
 from fxswarm.core.resilience import wmsr_trim
 from fxswarm.core.scenario import Scenario
 from fxswarm.faults.plan import DegradedLimits, Lie, degraded_limits
@@ -67,8 +67,9 @@ class AgentNode:
         self.pinned = scenario.is_pinned(robot_id)
         # [estimator] estimator_graph = "oriented" (docs/estimator.md): eq. (11) sums over the
         # upstream neighbours only (fewer hops from a pinned robot); the others' rows weigh 0.
-        a = scenario.a if scenario.estimator_graph == "undirected" else observer_weights(scenario.a, scenario.b)
-        weights = [a[robot_id - 1, j - 1] for j in self.neighbour_ids]
+        ids, ws = observer_links(scenario.graph, scenario.b, scenario.estimator_graph).row(robot_id - 1)
+        row = dict(zip((ids + 1).tolist(), ws.tolist()))
+        weights = [row.get(j, 0.0) for j in self.neighbour_ids]
         if self.pinned:
             weights.append(scenario.b[robot_id - 1])
         self.weights = np.array(weights, dtype=float)
@@ -117,8 +118,8 @@ class AgentNode:
         self.feedforward = scenario.tracking == "feedforward"
         self.vh = np.zeros(3)  # estimate of the leader's velocity, m/s
         if self.feedforward:  # the neighbours eq. (obs) listens to (upstream ones, if oriented), and weights
-            row = observer_weights(scenario.a, scenario.b, scenario.observer_graph)[robot_id - 1]
-            self.observer_links = [(j, float(row[j - 1])) for j in self.neighbour_ids if row[j - 1] > 0]
+            ids, ws = observer_links(scenario.graph, scenario.b, scenario.observer_graph).row(robot_id - 1)
+            self.observer_links = list(zip((ids + 1).tolist(), ws.tolist()))
         # [estimator] resilience = "w-msr" (docs/resilience.md): F, the values discarded per axis
         # above and below its own before the law sees its rows; 0: none (the paper's, no cost).
         self.tolerate = scenario.tolerate if scenario.resilience == "w-msr" else 0

@@ -77,8 +77,9 @@ class LinkHealth:
 
     def __init__(self, sc: Scenario) -> None:
         ids = [r.id for r in sc.robots]
-        upper_i, upper_j = np.nonzero(np.triu(sc.a > 0, 1))  # row by row, as a double loop over i < j: O(edges) in Python
-        self.edges = list(zip((upper_i + 1).tolist(), (upper_j + 1).tolist()))
+        rows, cols = sc.graph.entry_rows(), sc.graph.indices
+        upper = cols > rows  # row by row, ascending: as a double loop over i < j
+        self.edges = list(zip((rows[upper] + 1).tolist(), (cols[upper] + 1).tolist()))
         self.edges += [(0, i) for i in ids if sc.is_pinned(i)]
         self.names = [f"{'L' if i == 0 else i}-{j}" for i, j in self.edges]
         self.directed = directed_links(sc)

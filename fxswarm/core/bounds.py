@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from fxswarm.core.control import BehaviourGains, EstimatorGains
+from fxswarm.core.graph import SparseGraph, graph_of, h_matrix
 
 
 def settling_time(x0: float, g: BehaviourGains) -> float:
@@ -65,14 +66,20 @@ def fixed_time_bound(g: BehaviourGains) -> float:
 DENSE_EIGEN_MAX = 400
 
 
+#: Above this size a dense H is not solved (eigvalsh: hours) nor built (three n x n copies).
+DENSE_EIGEN_LIMIT = 3000
+
+
 def extreme_eigenvalues(H) -> tuple[float, float]:
     """``(lambda_min, lambda_max)`` of the symmetric ``H``: a dense ``H`` by eigvalsh (NaN above
-    3000 rows: hours), a sparse one (:func:`h_of` above :data:`DENSE_EIGEN_MAX` robots, with
-    scipy) by ARPACK (shift-invert at 0 for the smallest; a fixed start vector, so the same
-    figures every run)."""
+    :data:`DENSE_EIGEN_LIMIT` rows, or for ``None``: :func:`h_of` without scipy there), a sparse
+    one (:func:`h_of` above :data:`DENSE_EIGEN_MAX` robots, with scipy) by ARPACK (shift-invert
+    at 0 for the smallest; a fixed start vector, so the same figures every run)."""
+    if H is None:
+        return math.nan, math.nan
     n = H.shape[0]
     if not hasattr(H, "tocsc"):
-        if n > 3000:
+        if n > DENSE_EIGEN_LIMIT:
             return math.nan, math.nan
         eig = np.linalg.eigvalsh(H)
         return float(eig[0]), float(eig[-1])
@@ -85,17 +92,19 @@ def extreme_eigenvalues(H) -> tuple[float, float]:
     return float(lmin), float(lmax)
 
 
-def h_of(a: np.ndarray, b: np.ndarray):
-    """``H = L + diag(b)`` of weights ``a`` (n, n) and pinning gains ``b`` (n,): dense up to
-    :data:`DENSE_EIGEN_MAX` robots, sparse above (three dense n x n copies are 2.4 GB at 10 000)."""
-    if len(b) <= DENSE_EIGEN_MAX:
-        return np.diag(a.sum(axis=1)) - a + np.diag(b)
+def h_of(a: SparseGraph | np.ndarray, b: np.ndarray):
+    """``H = L + diag(b)`` of weights ``a`` and pinning gains ``b`` (n,): dense up to
+    :data:`DENSE_EIGEN_MAX` robots, sparse above (with scipy; without it dense up to
+    :data:`DENSE_EIGEN_LIMIT`, else None: no n x n matrix is built at 10 000 robots)."""
+    g, n = graph_of(a), len(b)
+    if n <= DENSE_EIGEN_MAX:
+        return h_matrix(g.dense(), b)
     try:
         from scipy.sparse import csr_matrix, diags
     except ImportError:  # without the scale extra: dense (slow at thousands of robots)
-        return np.diag(a.sum(axis=1)) - a + np.diag(b)
+        return h_matrix(g.dense(), b) if n <= DENSE_EIGEN_LIMIT else None
 
-    A = csr_matrix(a)
+    A = csr_matrix((g.weights, g.indices, g.indptr), shape=(n, n))
     return (diags(np.asarray(A.sum(axis=1)).ravel() + b) - A).tocsc()
 
 

@@ -93,6 +93,6 @@ def summarise(sc: Scenario, traj: dict[str, np.ndarray], wall_s: float) -> dict:
         "fixed_time_bounds_s": {
             "formation": _finite_or_none(fixed_time_bound(sc.formation)),
             "avoidance": _finite_or_none(fixed_time_bound(sc.avoidance)),
-            "estimator": _finite_or_none(estimator_bound_printed(h_of(sc.a, sc.b), sc.estimator)),
+            "estimator": _finite_or_none(estimator_bound_printed(h_of(sc.graph, sc.b), sc.estimator)),
         },
     }

@@ -43,7 +43,7 @@ import numpy as np
 
 from fxswarm.core import motion
 from fxswarm.core.control import EstimatorGains
-from fxswarm.core.graph import hops_to_leader
+from fxswarm.core.graph import SparseGraph, graph_of, hops_to_leader
 
 #: ``[estimator] tracking``: the paper's estimator as printed, or with the observed leader
 #: velocity fed forward.
@@ -121,20 +121,26 @@ def max_acceleration_inf(path: motion.Path) -> float:
     raise TypeError(f"no acceleration bound for {type(path).__name__}")
 
 
-def observer_weights(a: np.ndarray, b: np.ndarray, graph: str = "oriented") -> np.ndarray:
-    """The weights ``abar_ij`` eq. (obs) sums over, shape (n, n); the leader's stay ``b``.
+def observer_links(a: SparseGraph | np.ndarray, b: np.ndarray, graph: str = "oriented") -> SparseGraph:
+    """The weights ``abar_ij`` eq. (obs) sums over, by rows; the leader's stay ``b``.
 
     ``"oriented"``: ``a_ij`` where robot j is strictly fewer hops from a pinned robot than
     robot i (its *upstream* neighbours), else 0: a directed acyclic graph in which every
     unpinned robot has an upstream neighbour (the graph is connected to a pinned robot).
     ``"undirected"``: ``a`` itself.
     """
+    g = graph_of(a)
     if graph == "undirected":
-        return np.array(a, dtype=float)
+        return g
     if graph != "oriented":
         raise ValueError(f"unknown observer graph {graph!r}; expected one of {', '.join(OBSERVER_GRAPHS)}")
-    hops = hops_to_leader(a, b)
-    return np.where(hops[None, :] < hops[:, None], a, 0.0)
+    hops = hops_to_leader(g, b)
+    return g.where(hops[g.indices] < hops[g.entry_rows()])
+
+
+def observer_weights(a: SparseGraph | np.ndarray, b: np.ndarray, graph: str = "oriented") -> np.ndarray:
+    """:func:`observer_links` as a dense (n, n) matrix (small swarms: analysis)."""
+    return observer_links(a, b, graph).dense()
 
 
 def oriented_settling_bound(a: np.ndarray, b: np.ndarray, gains: EstimatorGains) -> float:

@@ -197,14 +197,13 @@ class BehaviouralBatch:
         self._gains = ControlParameters(sc.formation, sc.avoidance, sc.estimator, sc.d, semi_implicit=True)
         self.feedforward = sc.tracking == "feedforward"
         if self.feedforward:  # eq. (obs)'s links: the upstream neighbours (oriented) or all, then the leader
-            from fxswarm.core.observer import observer_weights
+            from fxswarm.core.observer import observer_links
 
-            obs = observer_weights(sc.a, sc.b, sc.observer_graph)
+            obs = observer_links(sc.graph, sc.b, sc.observer_graph)
             n = len(slots)
             o_slots, o_weights, o_valid = np.full(slots.shape, n), np.zeros(slots.shape), np.zeros(slots.shape, bool)
-            for i in range(n):
-                ids = [int(j) for j, ok in zip(slots[i], valid[i]) if ok and j < n and obs[i, j] > 0]
-                ws = [float(obs[i, j]) for j in ids]
+            for i in range(n):  # the upstream (or all) neighbours, ascending, then the leader
+                ids, ws = (x.tolist() for x in obs.row(i))
                 if sc.b[i] > 0:
                     ids.append(n)
                     ws.append(float(sc.b[i]))

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from fxswarm.core.graph import SparseGraph, graph_of
+
 #: [estimator] resilience choices: "none" (the paper's: every value used) or "w-msr".
 RESILIENCE = ("none", "w-msr")
 #: Up to this many robots the r-robustness of the graph is computed exactly (2^n subsets).
@@ -71,17 +73,17 @@ def wmsr_trim(own: list[float], rows: list[list[float]], tolerate: int, trusted:
 # --- the graph conditions -----------------------------------------------------------------
 
 
-def leader_reach(a: np.ndarray, b: np.ndarray, r: int) -> list[int]:
+def leader_reach(a: SparseGraph | np.ndarray, b: np.ndarray, r: int) -> list[int]:
     """Robots (1-based) *not* reached by the rule: a robot is reached if it is pinned
     (``b_i > 0``) or has at least ``r`` graph neighbours already reached. Empty means every
     nonempty set C of robots holds a robot that is pinned or has ``r`` neighbours outside C
     (the first robot of C the rule reaches is one): the condition of docs/resilience.md with
     ``r = 2F + 1``. Exact, polynomial, any size."""
-    n = len(b)
+    n, g = len(b), graph_of(a)
+    rows = g.entry_rows()
     reached = np.asarray(b) > 0
-    adj = np.asarray(a) > 0
     while True:
-        counts = adj[:, reached].sum(axis=1)
+        counts = np.bincount(rows, weights=reached[g.indices], minlength=n)
         grow = ~reached & (counts >= r)
         if not grow.any():
             break
@@ -106,17 +108,18 @@ def reachability(a: np.ndarray) -> np.ndarray:
     return best
 
 
-def robustness(a: np.ndarray) -> int | None:
+def robustness(a: SparseGraph | np.ndarray) -> int | None:
     """The largest r such that the robots' graph is r-robust (LeBlanc et al. 2013, Def. 4: of
     any two disjoint nonempty sets of robots, one holds a robot with at least r neighbours
     outside its set); exact, by enumeration, for up to :data:`EXACT_ROBUSTNESS_MAX_N` robots,
     else None (unknown: the check is coNP-complete in general)."""
-    n = len(a)
+    g = graph_of(a)
+    n = g.n
     if n > EXACT_ROBUSTNESS_MAX_N:
         return None
     if n < 2:
         return 0
-    reach = reachability(a)
+    reach = reachability(g.dense())
     full = (1 << n) - 1
     best = 0
     for r in range(1, n):
@@ -135,7 +138,7 @@ def robustness(a: np.ndarray) -> int | None:
     return best
 
 
-def check_graph(a: np.ndarray, b: np.ndarray, tolerate: int) -> dict:
+def check_graph(a: SparseGraph | np.ndarray, b: np.ndarray, tolerate: int) -> dict:
     """What docs/resilience.md's checker says about a graph (``a``, pins ``b``) for F = ``tolerate``.
 
     ``meets``: True if every robot is reached by :func:`leader_reach` with r = 2F + 1 (the

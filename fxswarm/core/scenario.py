@@ -28,7 +28,7 @@ from fxswarm.core.paper_law import BUILTIN_LAWS, FAMILIES, builtin_name, family_
 from fxswarm.core.observer import DEFAULT_OBSERVER_GAINS, OBSERVER_GRAPHS, TRACKINGS, max_acceleration_inf
 from fxswarm.core.resilience import RESILIENCE, leader_reach
 from fxswarm.core.swarm import expand as expand_swarm
-from fxswarm.core.graph import TOPOLOGIES, adjacency, h_matrix, topology_edges, unreached_robots
+from fxswarm.core.graph import TOPOLOGIES, SparseGraph, adjacency, h_matrix, topology_edges, unreached_robots
 
 
 class ScenarioError(ValueError):
@@ -58,7 +58,7 @@ class Scenario:
     d: float
     v_max: float | None
     robots: tuple[Robot, ...]
-    a: np.ndarray = field(repr=False)  # (n, n) symmetric weights a_ij
+    graph: SparseGraph = field(repr=False)  # the symmetric weights a_ij, by rows (dense: ``a``)
     b: np.ndarray = field(repr=False)  # (n,) leader pinning gains b_i
     leader: motion.Path
     obstacles: tuple[motion.Path, ...]
@@ -94,12 +94,22 @@ class Scenario:
         return int(round(self.duration / self.dt))
 
     @property
+    def a(self) -> np.ndarray:
+        """The weights ``a_ij`` as a dense (n, n) matrix, built on each call: for analysis of
+        small swarms (763 MB at 10 000 robots; the run itself reads :attr:`graph`)."""
+        return self.graph.dense()
+
+    @property
     def H(self) -> np.ndarray:
         return h_matrix(self.a, self.b)
 
     def neighbours(self, robot_id: int) -> list[int]:
         """Graph neighbours (1-based ids, ascending) of a robot."""
-        return [int(j) + 1 for j in np.flatnonzero(self.a[robot_id - 1] > 0)]
+        return (self.graph.row(robot_id - 1)[0] + 1).tolist()
+
+    def weights(self, robot_id: int) -> list[float]:
+        """The weights ``a_ij`` of a robot's :meth:`neighbours`, in their order."""
+        return self.graph.row(robot_id - 1)[1].tolist()
 
     def is_pinned(self, robot_id: int) -> bool:
         return bool(self.b[robot_id - 1] > 0)
@@ -668,8 +678,8 @@ def _edges(grf: _Fields, source: str, n: int) -> tuple[list[tuple[int, int]], li
     return edges, weights
 
 
-def _graph(grf: _Fields, source: str, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """``[graph]`` as the adjacency ``a`` (n, n) and the pinning gains ``b`` (n,), checked: every
+def _graph(grf: _Fields, source: str, n: int) -> tuple[SparseGraph, np.ndarray]:
+    """``[graph]`` as the weights ``a`` (by rows) and the pinning gains ``b`` (n,), checked: every
     robot reaches one that hears the leader."""
     grf.check_known({"topology", "edges", "weights", "pinned", "pin_gain"})
     edges, weights = _edges(grf, source, n)
@@ -715,7 +725,7 @@ def parse(data: dict, source: str = "<scenario>", folder: str | None = None, *, 
     scenario = Scenario(
         name=name, source=source, duration=duration, dt=dt, seed=sc.integer("seed", 0),
         settle_tolerance=sc.number("settle_tolerance", 0.2, positive=True), d=d, v_max=v_max,
-        robots=tuple(robots), a=a, b=b, leader=leader, obstacles=obstacles, raw=data, **control,
+        robots=tuple(robots), graph=a, b=b, leader=leader, obstacles=obstacles, raw=data, **control,
         logging=_logging(top.table_at("logging")), zenoh=_zenoh(top.table_at("zenoh")),
         ros2=_ros2(top.table_at("ros2")),
         law_folder=folder if folder is not None else _folder_of(source),
@@ -742,7 +752,7 @@ def _warn_assumptions(scenario: Scenario) -> None:
             )
     tolerate = scenario.tolerate
     if scenario.resilience == "w-msr":
-        unreached = leader_reach(scenario.a, scenario.b, 2 * tolerate + 1)
+        unreached = leader_reach(scenario.graph, scenario.b, 2 * tolerate + 1)
         if unreached:
             warnings.warn(
                 f"{source}: estimator.resilience = \"w-msr\" with tolerate = {tolerate}: the graph does not meet "

@@ -37,7 +37,7 @@ def neighbour_slots(sc: Scenario) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     rows = []
     for r in sc.robots:
         ids = [j - 1 for j in sc.neighbours(r.id)]
-        ws = [float(sc.a[r.id - 1, j]) for j in ids]
+        ws = sc.weights(r.id)
         if sc.is_pinned(r.id):
             ids.append(n)
             ws.append(float(sc.b[r.id - 1]))

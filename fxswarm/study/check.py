@@ -30,7 +30,7 @@ def main(args: argparse.Namespace) -> int:
     if f < 1:
         print(f"fxswarm check: --tolerate: expected an integer >= 1, got {f}")
         return 2
-    got = check_graph(sc.a, sc.b, f)
+    got = check_graph(sc.graph, sc.b, f)
     pinned = [r.id for r in sc.robots if sc.is_pinned(r.id)]
     if args.json:
         print(json.dumps({"scenario": sc.name, "robots": sc.n, "pinned": pinned, **got}))

@@ -34,7 +34,7 @@ from fxswarm.study.measure import floors, settle_times
 
 def graph_hops(sc: Scenario) -> int:
     """Ticks for the leader's position to reach the farthest robot: its hops to a pinned robot, plus one."""
-    return int(hops_to_leader(sc.a, sc.b).max()) + 1
+    return int(hops_to_leader(sc.graph, sc.b).max()) + 1
 
 
 def leader_speed_max(sc: Scenario) -> float:
