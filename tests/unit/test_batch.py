@@ -230,6 +230,27 @@ def test_above_the_dense_limit_the_kd_tree_world_gives_both_paths_the_same_run()
     assert ta["avoid_active"].any()
 
 
+def test_a_generated_10000_robot_swarm_parses_and_steps_without_an_n_by_n_array():
+    # the scenario holds its graph by rows (fxswarm.core.graph.SparseGraph): a dense n x n
+    # float array anywhere on the way (parse, the batch path, the summary) would be 763 MB
+    import tracemalloc
+
+    n = 10_000
+    raw = generated({"count": n, "formation": "grid", "spacing": 2.0, "graph": "k-nearest", "k": 4,
+                     "pinned": 0.05, "box": 6.0}, ticks=3, dt=0.01)
+    tracemalloc.start()
+    try:
+        sc = parse(raw, "gen.toml")
+        sim = Simulation(sc, path="batch")
+        summary = sim.run()
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert summary["path"] == "batch" and summary["robots"] == n and summary["ticks"] == 3
+    assert sim.trajectory()["p"].shape == (3, n, 3)
+    assert peak < n * n * 8 / 10, f"peak {peak / 2**20:.0f} MB: an n x n array is {n * n * 8 / 2**20:.0f} MB"
+
+
 def test_a_law_that_only_inherits_a_batch_form_runs_per_robot(tmp_path, monkeypatch):
     (tmp_path / "louder.py").write_text(
         "from fxswarm.core.paper_law import BehaviouralLaw\n"
