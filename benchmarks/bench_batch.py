@@ -11,7 +11,7 @@ scenario and the nodes is not in it). Large N per robot costs minutes a run, so 
 fewer ticks (``--per-robot-ticks N:T``): its figure is then an estimate from those ticks, marked
 ``estimated_from_ticks``. ``real_time_factor``: simulated s per wall s (at or above 1: real time).
 ``peak_rss_mb_so_far``: the process's peak resident memory after the size (ascending sizes: the
-largest's peak); ``weight_matrix_mb``: the scenario's dense n x n weights within it.
+largest's peak); ``weight_graph_mb``: the scenario's weights (by rows, :class:`fxswarm.core.graph.SparseGraph`) within it.
 Where both paths ran the same ticks their trajectories are compared (``bit_equal``).
 """
 
@@ -90,10 +90,11 @@ def main(argv=None) -> int:
             print(f"N={n}: per-robot {w_pr:.3f} s ({pr_ticks} ticks), batch {w_b:.3f} s ({args.ticks} ticks)",
                   file=sys.stderr)
         # peak resident memory of this process so far (sizes run in ascending order: the largest's
-        # peak), and the scenario's dense n x n weight matrix within it
+        # peak), and the scenario's weights (held by rows) within it
         entry = {"robots": n, "scenario_build_s": round(build_s, 3), "bit_equal": equal,
                  "peak_rss_mb_so_far": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024),
-                 "weight_matrix_mb": round(sc.a.nbytes / 2**20)}
+                 "weight_graph_mb": round(sum(x.nbytes for x in (sc.graph.indptr, sc.graph.indices,
+                                                                 sc.graph.weights)) / 2**20, 2)}
         for path, ticks in (("per-robot", pr_ticks), ("batch", args.ticks)):
             best = min(walls[path])
             entry[path] = {"ticks": ticks, "wall_s": [round(w, 4) for w in walls[path]],
