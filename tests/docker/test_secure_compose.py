@@ -55,8 +55,7 @@ def test_secure_compose_swarm_runs_to_completion_as_non_root_with_keys_as_secret
         assert summary["complete"] and summary["ticks"] == 400, summary
         ids = _run([*tool, "-p", name, "ps", "-a", "-q"], 60, "compose ps", env=env, cwd=folder).split()
         assert len(ids) == 10  # router, logger, leader, six agents, world
-        for cid in ids:
-            info = json.loads(_run(["docker", "inspect", cid], 30, "docker inspect"))[0]
+        for info in json.loads(_run(["docker", "inspect", *ids], 60, "docker inspect")):
             assert info["State"]["ExitCode"] == 0 or info["Config"]["Labels"].get(
                 "com.docker.compose.service") == "router", info["Name"]
             assert info["Config"]["User"] not in ("", "0", "root") and not info["Config"]["User"].startswith("0:")
@@ -68,11 +67,14 @@ def test_secure_compose_swarm_runs_to_completion_as_non_root_with_keys_as_secret
             assert not [d for d in mounts if d.endswith(".key") and d != f"/run/secrets/{service}.key"]
         logs = _run([*tool, "-p", name, "logs", "--no-color", "router"], 60, "compose logs", env=env, cwd=folder)
         assert "secure: mutual TLS on tls/0.0.0.0:7447" in logs
-        # No key is baked into any image.
-        for family in ("agent", "world", "leader", "logger"):
-            found = _run(["docker", "run", "--rm", "--entrypoint", "sh", f"fxswarm-{family}:{TAG}", "-c",
-                          "find / -xdev \\( -name '*.key' -o -name 'ca.pem' \\) -not -path '/proc/*' 2>/dev/null; true"],
-                         120, f"find keys in the {family} image")
+        # No key is baked into any image: the four searches at once (each waits on its container's start).
+        searches = {family: subprocess.Popen(
+            ["docker", "run", "--rm", "--entrypoint", "sh", f"fxswarm-{family}:{TAG}", "-c",
+             "find / -xdev \\( -name '*.key' -o -name 'ca.pem' \\) -not -path '/proc/*' 2>/dev/null; true"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for family in ("agent", "world", "leader", "logger")}
+        for family, search in searches.items():
+            found, err = search.communicate(timeout=120)
+            assert search.returncode == 0, (family, err)
             assert found.strip() == "", (family, found)
     finally:
         subprocess.run([*tool, "-p", name, "down", "-v", "--remove-orphans", "--timeout", "5"], capture_output=True,
