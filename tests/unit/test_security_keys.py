@@ -8,7 +8,6 @@ from __future__ import annotations
 import datetime as dt
 import json
 import shutil
-import signal
 import stat
 import subprocess
 import sys
@@ -44,24 +43,6 @@ def keys(tmp_path_factory, sc) -> Path:
 def fxswarm(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "fxswarm.cli", *args], capture_output=True, text=True, timeout=120,
                           cwd=cwd)
-
-
-@pytest.fixture
-def refused(capsys):
-    """``refused(*ARGS)``: `fxswarm ARGS` run in this process, as the console script runs it (no new
-    interpreter: each one cost a third of a second of CPU, and these checks are about the refusal,
-    not the start); its exit code and what it wrote on stderr."""
-    def run(*args: str) -> tuple[int, str]:
-        capsys.readouterr()
-        sigint = signal.getsignal(signal.SIGINT)  # main may install its own: this process keeps its
-        try:
-            code = fxswarm_main(list(args))
-        except SystemExit as exc:  # argparse's refusals
-            code = exc.code
-        finally:
-            signal.signal(signal.SIGINT, sigint)
-        return code, capsys.readouterr().err
-    return run
 
 
 def test_keys_command_writes_a_ca_and_one_private_pair_per_process(tmp_path, sc):
@@ -139,23 +120,23 @@ def _bad(tmp_path: Path, keys: Path, how: str) -> tuple[Path, Path]:
 @pytest.mark.parametrize("how,says", [("missing", "missing"), ("missing-cert", "missing"), ("unreadable", "cannot read"),
                                       ("expired", "expired"), ("wrong-ca", "does not verify"),
                                       ("wrong-key", "does not belong")])
-def test_a_bad_key_file_is_named_and_nothing_starts(tmp_path, keys, how, says, refused):
+def test_a_bad_key_file_is_named_and_nothing_starts(tmp_path, keys, how, says, fxswarm_here):
     folder, named = _bad(tmp_path, keys, how)
     with pytest.raises(KeyFileError, match=says) as err:
         checked(folder, "agent-3")
     assert str(named) in str(err.value)
     assert "not a PEM" not in str(err.value) and "not an unencrypted" not in str(err.value), err.value  # not its format
     out = tmp_path / "run"
-    code, err = refused("run", str(SCENARIO), "--secure", str(folder), "--out", str(out), "--quiet")
+    code, _, err = fxswarm_here("run", SCENARIO, "--secure", folder, "--out", out, "--quiet")
     assert code == 2, err
     assert str(named) in err and says in err
     assert not (out / "logs").exists()  # no process was started
-    code, err = refused("agent", str(SCENARIO), "--id", "3", "--secure", str(folder), "--connect", "tls/127.0.0.1:9")
+    code, _, err = fxswarm_here("agent", SCENARIO, "--id", "3", "--secure", folder, "--connect", "tls/127.0.0.1:9")
     assert code == 2 and str(named) in err
 
 
 @pytest.mark.parametrize("how,says", [("missing", "missing"), ("wrong-ca", "does not verify")])
-def test_attach_names_a_bad_key_file_before_it_connects(tmp_path, keys, how, says, refused):
+def test_attach_names_a_bad_key_file_before_it_connects(tmp_path, keys, how, says, fxswarm_here):
     folder = tmp_path / "keys"
     shutil.copytree(keys, folder)
     named = folder / "observer.pem"
@@ -168,30 +149,30 @@ def test_attach_names_a_bad_key_file_before_it_connects(tmp_path, keys, how, say
         shutil.copy(other / "observer.key", folder / "observer.key")
     out = tmp_path / "seen"
     # Port 9 (discard): nothing answers there, so only a check before connecting ends this at once.
-    code, err = refused("attach", "tls/127.0.0.1:9", "--swarm", "s", "--out", str(out), "--secure", str(folder),
-                        "--timeout", "30")
+    code, _, err = fxswarm_here("attach", "tls/127.0.0.1:9", "--swarm", "s", "--out", out, "--secure", folder,
+                                "--timeout", "30")
     assert code == 2, err
     (line,) = err.strip().splitlines()
     assert str(named) in line and says in line
     assert not out.exists()
-    code, err = refused("attach", "tcp/127.0.0.1:9", "--swarm", "s", "--out", str(out), "--secure", str(keys))
+    code, _, err = fxswarm_here("attach", "tcp/127.0.0.1:9", "--swarm", "s", "--out", out, "--secure", keys)
     assert code == 2 and "tls/HOST:PORT" in err and not out.exists()
 
 
-def test_secure_mode_is_plaintext_free_and_an_audited_run_is_routed(tmp_path, keys, refused):
-    code, err = refused("run", str(SCENARIO), "--secure", str(keys), "--audit", "--topology", "mesh",
-                        "--out", str(tmp_path / "r"))
+def test_secure_mode_is_plaintext_free_and_an_audited_run_is_routed(tmp_path, keys, fxswarm_here):
+    code, _, err = fxswarm_here("run", SCENARIO, "--secure", keys, "--audit", "--topology", "mesh",
+                                "--out", tmp_path / "r")
     assert code == 2 and "routed" in err
-    code, err = refused("agent", str(SCENARIO), "--id", "1", "--secure", str(keys), "--connect", "tcp/127.0.0.1:7447")
+    code, _, err = fxswarm_here("agent", SCENARIO, "--id", "1", "--secure", keys, "--connect", "tcp/127.0.0.1:7447")
     assert code == 2 and "tls/" in err
-    code, err = refused("world", str(SCENARIO), "--secure", str(keys), "--mode", "peer", "--connect", "tls/127.0.0.1:9",
-                        "--listen", "tcp/127.0.0.1:0")
+    code, _, err = fxswarm_here("world", SCENARIO, "--secure", keys, "--mode", "peer", "--connect", "tls/127.0.0.1:9",
+                                "--listen", "tcp/127.0.0.1:0")
     assert code == 2 and "--listen tcp/127.0.0.1:0" in err and "tls/" in err
-    code, err = refused("world", str(SCENARIO), "--secure", str(keys), "--mode", "router", "--connect", "tls/127.0.0.1:9")
+    code, _, err = fxswarm_here("world", SCENARIO, "--secure", keys, "--mode", "router", "--connect", "tls/127.0.0.1:9")
     assert code == 2 and "client" in err
-    code, err = refused("world", str(SCENARIO), "--mode", "peer", "--access", str(keys / "access.json"))
+    code, _, err = fxswarm_here("world", SCENARIO, "--mode", "peer", "--access", keys / "access.json")
     assert code == 2 and "--secure" in err
-    code, err = refused("router", "--secure", str(keys), "--listen", "tcp/127.0.0.1:0")
+    code, _, err = fxswarm_here("router", "--secure", keys, "--listen", "tcp/127.0.0.1:0")
     assert code == 2 and "tls/" in err
 
 
@@ -263,7 +244,7 @@ def test_secure_compose_gives_each_service_its_own_key_as_secrets(tmp_path, sc, 
     assert "FXSWARM_SECURE" in text and json.loads((keys / "access.json").read_text())["default_permission"] == "deny"
 
 
-def test_a_mesh_peer_needs_a_server_certificate_and_the_rules(tmp_path, keys, refused):
+def test_a_mesh_peer_needs_a_server_certificate_and_the_rules(tmp_path, keys, fxswarm_here):
     """Keys of an older fxswarm (only the router's certificate could serve TLS) are named up front, as is
     a missing rules file; a client still takes them."""
     from fxswarm.security.keys import _cert_pem, _key_pem, make_ca, make_leaf
@@ -284,11 +265,11 @@ def test_a_mesh_peer_needs_a_server_certificate_and_the_rules(tmp_path, keys, re
     with pytest.raises(KeyFileError, match="not a TLS server certificate") as err:
         checked(old, "agent-1", server=True)
     assert str(old / "agent-1.pem") in str(err.value)
-    code, err = refused("agent", str(SCENARIO), "--id", "1", "--secure", str(old), "--mode", "peer",
-                        "--connect", "tls/127.0.0.1:9")
+    code, _, err = fxswarm_here("agent", SCENARIO, "--id", "1", "--secure", old, "--mode", "peer",
+                                "--connect", "tls/127.0.0.1:9")
     assert code == 2 and "agent-1.pem" in err and "server" in err
-    code, err = refused("agent", str(SCENARIO), "--id", "1", "--secure", str(keys), "--mode", "peer",
-                        "--connect", "tls/127.0.0.1:9", "--access", str(tmp_path / "nowhere.json"))
+    code, _, err = fxswarm_here("agent", SCENARIO, "--id", "1", "--secure", keys, "--mode", "peer",
+                                "--connect", "tls/127.0.0.1:9", "--access", tmp_path / "nowhere.json")
     assert code == 2 and "nowhere.json: missing" in err
 
 
