@@ -103,3 +103,30 @@ def run_dir(tmp_path_factory):
     folder = tmp_path_factory.mktemp("run")
     write_run(folder, sim.run(), sim.trajectory())
     return folder
+
+
+@pytest.fixture(scope="session")
+def paper_run(tmp_path_factory, worker_id):
+    """configs/paper.toml as shipped, its 300 s simulated once per test session (about 7 s of CPU)
+    for the tests that only read it: (scenario, summary, trajectory). The pytest-xdist workers
+    share one run folder: the first to ask simulates, under a lock, the other reads its files."""
+    import fcntl
+    import json
+
+    import numpy as np
+
+    from fxswarm.core.scenario import load
+    from fxswarm.launch.sim import Simulation
+    from fxswarm.runtime.output import write_run
+
+    base = tmp_path_factory.getbasetemp()
+    folder = (base if worker_id == "master" else base.parent) / "paper-run"  # a worker's parent: the session's
+    sc = load(PAPER_FAST.parent / "paper.toml")
+    with open(f"{folder}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (folder / "summary.json").is_file():  # written last
+            sim = Simulation(sc)
+            write_run(folder, sim.run(), sim.trajectory())
+    with np.load(folder / "trajectory.npz") as saved:
+        trajectory = dict(saved)
+    return sc, json.loads((folder / "summary.json").read_text()), trajectory
