@@ -33,13 +33,15 @@ def fxswarm_here(capsys):
         from fxswarm.cli import main
 
         capsys.readouterr()
-        sigint = signal.getsignal(signal.SIGINT)  # main may install its own: this process keeps its
+        # A command that gets as far as running installs its own: this process keeps its handlers.
+        handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
         try:
             code = main([str(a) for a in args])
         except SystemExit as exc:  # argparse's refusals
             code = exc.code
         finally:
-            signal.signal(signal.SIGINT, sigint)
+            for sig, handler in handlers.items():
+                signal.signal(sig, handler)
         out = capsys.readouterr()
         return code, out.out, out.err
     return run

@@ -16,7 +16,7 @@ from prerequisites import Prerequisite, unavailable
 TESTS = Path(__file__).resolve().parents[1]
 # The planted runs need pytest and the project's hooks only: no installed plugin (fxswarm's, xdist,
 # hypothesis, timeout), whose loading was most of each run's CPU time.
-BARE_PYTEST = {"PYTHONPATH": str(TESTS), "PYTEST_DISABLE_PLUGIN_AUTOLOAD": "1"}
+BARE_PYTEST = {"PYTHONPATH": str(TESTS), "PYTEST_DISABLE_PLUGIN_AUTOLOAD": "1", "PYTEST_ADDOPTS": ""}
 
 #: One test of each kind of outcome a CI run can meet.
 SAMPLE = '''
