@@ -31,7 +31,7 @@ test: lint
 	status=0; $(PY) -m pytest tests/unit -n 2 $(PYTEST_ARGS) || status=$$?; \
 	$(PY) -m pytest tests/integration tests/docker $(PYTEST_ARGS) || status=$$?; exit $$status
 
-# The quick layer: pure tests on two workers, without the ones marked slow (minutes of simulation).
+# The quick layer: pure tests on two workers, without the ones marked slow (minutes of simulation, deep fuzzing).
 test-unit: $(STAMP)
 	$(PY) -m pytest tests/unit -m "not slow" -n 2
 

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import dataclasses
+import signal
 
 import pytest
 
@@ -21,6 +22,29 @@ def pytest_collection_modifyitems(items):
     for item in items:
         if {"ros2", "ros2_msgs"} & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.ros2)
+
+
+@pytest.fixture
+def fxswarm_here(capsys):
+    """``fxswarm_here(*ARGS)``: `fxswarm ARGS` run in this process, as the console script runs it;
+    its exit code, stdout and stderr. For commands that refuse or compute and exit: a subprocess
+    costs a new interpreter and its imports (about 0.35 s of CPU) for the same code path."""
+    def run(*args) -> tuple[int, str, str]:
+        from fxswarm.cli import main
+
+        capsys.readouterr()
+        # A command that gets as far as running installs its own: this process keeps its handlers.
+        handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            code = main([str(a) for a in args])
+        except SystemExit as exc:  # argparse's refusals
+            code = exc.code
+        finally:
+            for sig, handler in handlers.items():
+                signal.signal(sig, handler)
+        out = capsys.readouterr()
+        return code, out.out, out.err
+    return run
 
 
 @pytest.fixture
@@ -81,3 +105,30 @@ def run_dir(tmp_path_factory):
     folder = tmp_path_factory.mktemp("run")
     write_run(folder, sim.run(), sim.trajectory())
     return folder
+
+
+@pytest.fixture(scope="session")
+def paper_run(tmp_path_factory, worker_id):
+    """configs/paper.toml as shipped, its 300 s simulated once per test session (about 7 s of CPU)
+    for the tests that only read it: (scenario, summary, trajectory). The pytest-xdist workers
+    share one run folder: the first to ask simulates, under a lock, the other reads its files."""
+    import fcntl
+    import json
+
+    import numpy as np
+
+    from fxswarm.core.scenario import load
+    from fxswarm.launch.sim import Simulation
+    from fxswarm.runtime.output import write_run
+
+    base = tmp_path_factory.getbasetemp()
+    folder = (base if worker_id == "master" else base.parent) / "paper-run"  # a worker's parent: the session's
+    sc = load(PAPER_FAST.parent / "paper.toml")
+    with open(f"{folder}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (folder / "summary.json").is_file():  # written last
+            sim = Simulation(sc)
+            write_run(folder, sim.run(), sim.trajectory())
+    with np.load(folder / "trajectory.npz") as saved:
+        trajectory = dict(saved)
+    return sc, json.loads((folder / "summary.json").read_text()), trajectory

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import os
 import shutil
 import subprocess
@@ -36,6 +37,7 @@ def engine_problem() -> str | None:
     return None
 
 
+@functools.cache  # asked by each compose test and its prerequisite check: `version` costs 0.35 s of CPU
 def compose_command() -> list[str] | None:
     """The compose tool this machine has: the ``docker compose`` plugin, else ``docker-compose``."""
     if _answers(["docker", "compose", "version"])[0]:

@@ -265,26 +265,24 @@ def test_a_law_that_only_inherits_a_batch_form_runs_per_robot(tmp_path, monkeypa
     assert auto.batch_law is None and "inherits" in auto.path_reason
 
 
-def test_fxswarm_sim_says_which_path_and_why(tmp_path):
+def test_fxswarm_sim_says_which_path_and_why(tmp_path, fxswarm_here):
     import json
-    import subprocess
-    import sys
 
     from fxswarm.core.tomltext import dump_toml
 
     path = tmp_path / "gen.toml"
     path.write_text(dump_toml(generated(SWARMS[3], ticks=5)))
-    run = [sys.executable, "-m", "fxswarm.cli", "sim", str(path), "--quiet"]
+    run = ["sim", path, "--quiet"]
     fault = ["--fault", "agent:*->agent:* drop=0.2"]
-    done = subprocess.run(run + ["--out", str(tmp_path / "a")], capture_output=True, text=True)
-    assert done.returncode == 0 and done.stderr == "", done.stderr
+    code, _, err = fxswarm_here(*run, "--out", tmp_path / "a")
+    assert code == 0 and err == "", err
     assert json.loads((tmp_path / "a" / "summary.json").read_text())["path"] == "batch"
-    done = subprocess.run(run + fault + ["--out", str(tmp_path / "b")], capture_output=True, text=True)
-    assert done.returncode == 0 and "fxswarm sim: per-robot path: the run has faults" in done.stderr, done.stderr
+    code, _, err = fxswarm_here(*run, *fault, "--out", tmp_path / "b")
+    assert code == 0 and "fxswarm sim: per-robot path: the run has faults" in err, err
     summary = json.loads((tmp_path / "b" / "summary.json").read_text())
     assert summary["path"] == "per-robot" and "faults" in summary["path_reason"]
-    done = subprocess.run(run + fault + ["--path", "batch", "--out", str(tmp_path / "c")], capture_output=True, text=True)
-    assert done.returncode == 2 and "--path batch: the run has faults" in done.stderr and not (tmp_path / "c").exists()
+    code, _, err = fxswarm_here(*run, *fault, "--path", "batch", "--out", tmp_path / "c")
+    assert code == 2 and "--path batch: the run has faults" in err and not (tmp_path / "c").exists()
 
 
 def test_a_non_finite_value_on_the_batch_path_runs_it_again_per_robot(monkeypatch, capsys):

@@ -58,11 +58,8 @@ def test_settle_time_and_episode_helpers():
 
 
 @pytest.mark.slow
-def test_paper_scenario_300_s_passes_every_obstacle(tmp_path):
-    sc = load("configs/paper.toml")
-    sim = Simulation(sc)
-    s = sim.run()
-    traj = sim.trajectory()
+def test_paper_scenario_300_s_passes_every_obstacle(paper_run):
+    sc, s, traj = paper_run
     assert s["min_object_distance_m"] >= 1.8
     assert s["formation_error_final_m"] <= 0.15 and s["estimate_error_final_m"] <= 0.15
     top = max(o.position(0.0)[2] for o in sc.obstacles)

@@ -14,6 +14,9 @@ import prerequisites
 from prerequisites import Prerequisite, unavailable
 
 TESTS = Path(__file__).resolve().parents[1]
+# The planted runs need pytest and the project's hooks only: no installed plugin (fxswarm's, xdist,
+# hypothesis, timeout), whose loading was most of each run's CPU time.
+BARE_PYTEST = {"PYTHONPATH": str(TESTS), "PYTEST_DISABLE_PLUGIN_AUTOLOAD": "1", "PYTEST_ADDOPTS": ""}
 
 #: One test of each kind of outcome a CI run can meet.
 SAMPLE = '''
@@ -49,9 +52,9 @@ def outcomes(tmp_path: Path, **env: str) -> dict[str, str]:
     clean = {k: v for k, v in os.environ.items()
              if k not in ("CI", prerequisites.CI_MISSING_ENV) and not k.startswith("FXSWARM_REQUIRE_")}
     xml = tmp_path / "report.xml"
-    r = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-p", "no:fxswarm", "-o", "addopts=",
+    r = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-o", "addopts=",
                         f"--junitxml={xml}", str(tmp_path)], capture_output=True, text=True, cwd=tmp_path,
-                       env={**clean, "PYTHONPATH": str(TESTS), **env})
+                       env={**clean, **BARE_PYTEST, **env})
     assert xml.is_file(), r.stdout + r.stderr
     found = {}
     for case in ET.parse(xml).iter("testcase"):
@@ -99,9 +102,9 @@ def collection_run(tmp_path: Path, **env: str) -> subprocess.CompletedProcess:
         (tmp_path / name).write_text(text)
     clean = {k: v for k, v in os.environ.items()
              if k not in ("CI", prerequisites.CI_MISSING_ENV) and not k.startswith("FXSWARM_REQUIRE_")}
-    return subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-p", "no:fxswarm", "-o", "addopts=",
+    return subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-o", "addopts=",
                            "-rA", str(tmp_path)], capture_output=True, text=True, cwd=tmp_path,
-                          env={**clean, "PYTHONPATH": str(TESTS), **env})
+                          env={**clean, **BARE_PYTEST, **env})
 
 
 def test_locally_a_module_skipped_at_collection_stays_skipped(tmp_path):

@@ -82,18 +82,17 @@ def test_the_ros2_table_defaults_are_the_issue_s(ros2_msgs):
     (("--world", "ros2"), "ros2.pose_type"),
     (("--world", "ros2", "--clock", "realtime"), "ros2.pose_type"),
 ])
-def test_fxswarm_run_refuses_an_unknown_message_type_before_anything_starts(tmp_path, args, field):
+def test_fxswarm_run_refuses_an_unknown_message_type_before_anything_starts(tmp_path, args, field, fxswarm_here):
     out = tmp_path / "run"
-    r = subprocess.run(fxswarm_command("run", with_ros2(tmp_path, pose_type="Pose"), *args, "--out", out),
-                       capture_output=True, text=True, timeout=60)
-    assert r.returncode == 2 and f"ros2.toml: {field}: expected one of 'PoseStamped', 'Odometry'" in r.stderr
+    code, _, err = fxswarm_here("run", with_ros2(tmp_path, pose_type="Pose"), *args, "--out", out)
+    assert code == 2 and f"ros2.toml: {field}: expected one of 'PoseStamped', 'Odometry'" in err
     assert not out.exists()  # nothing started, no run folder
 
 
-def test_fxswarm_world_refuses_a_malformed_topic(tmp_path):
-    r = subprocess.run(fxswarm_command("world", with_ros2(tmp_path, cmd_topic="/robot{id}/cmd vel"), "--ros2",
-                                       "--clock", "realtime"), capture_output=True, text=True, timeout=60)
-    assert r.returncode == 2 and "ros2.cmd_topic: expected an absolute ROS 2 topic" in r.stderr, r.stderr
+def test_fxswarm_world_refuses_a_malformed_topic(tmp_path, fxswarm_here):
+    code, _, err = fxswarm_here("world", with_ros2(tmp_path, cmd_topic="/robot{id}/cmd vel"), "--ros2",
+                                "--clock", "realtime")
+    assert code == 2 and "ros2.cmd_topic: expected an absolute ROS 2 topic" in err, err
 
 
 #: Run first in the child: importing Cyclone DDS fails, as where fxswarm[ros2] is not installed.
@@ -129,20 +128,18 @@ def test_without_the_extra_the_ros2_world_names_it_and_exits_2(tmp_path, command
     (("--world", "ros2", "--clock", "lockstep"), "real time (--clock realtime) at --speed 1 only"),
     (("--world", "ros2", "--speed", "2"), "real time (--clock realtime) at --speed 1 only"),
 ])
-def test_fxswarm_run_ros2_is_real_time_at_speed_1_only(tmp_path, args, says):
-    r = subprocess.run(fxswarm_command("run", CONFIG, *args, "--out", tmp_path / "run"),
-                       capture_output=True, text=True, timeout=60)
-    assert r.returncode == 2 and says in r.stderr, r.stderr
+def test_fxswarm_run_ros2_is_real_time_at_speed_1_only(tmp_path, args, says, fxswarm_here):
+    code, _, err = fxswarm_here("run", CONFIG, *args, "--out", tmp_path / "run")
+    assert code == 2 and says in err, err
 
 
-def test_a_ros2_world_without_a_speed_limit_is_refused(tmp_path):
+def test_a_ros2_world_without_a_speed_limit_is_refused(tmp_path, fxswarm_here):
     data = tomllib.loads(CONFIG.read_text())
     del data["scenario"]["v_max"]
     path = tmp_path / "no-limit.toml"
     path.write_text(dump_toml(data))
-    r = subprocess.run(fxswarm_command("run", path, "--world", "ros2", "--out", tmp_path / "run"),
-                       capture_output=True, text=True, timeout=60)
-    assert r.returncode == 2 and "ros2.v_max: expected a speed limit" in r.stderr, r.stderr
+    code, _, err = fxswarm_here("run", path, "--world", "ros2", "--out", tmp_path / "run")
+    assert code == 2 and "ros2.v_max: expected a speed limit" in err, err
 
 
 @pytest.mark.parametrize("value, ok", [("", 0), ("7", 7), ("232", 232), ("233", None), ("x", None), ("-1", None)])

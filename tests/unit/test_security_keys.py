@@ -120,23 +120,23 @@ def _bad(tmp_path: Path, keys: Path, how: str) -> tuple[Path, Path]:
 @pytest.mark.parametrize("how,says", [("missing", "missing"), ("missing-cert", "missing"), ("unreadable", "cannot read"),
                                       ("expired", "expired"), ("wrong-ca", "does not verify"),
                                       ("wrong-key", "does not belong")])
-def test_a_bad_key_file_is_named_and_nothing_starts(tmp_path, keys, how, says):
+def test_a_bad_key_file_is_named_and_nothing_starts(tmp_path, keys, how, says, fxswarm_here):
     folder, named = _bad(tmp_path, keys, how)
     with pytest.raises(KeyFileError, match=says) as err:
         checked(folder, "agent-3")
     assert str(named) in str(err.value)
     assert "not a PEM" not in str(err.value) and "not an unencrypted" not in str(err.value), err.value  # not its format
     out = tmp_path / "run"
-    r = fxswarm("run", str(SCENARIO), "--secure", str(folder), "--out", str(out), "--quiet")
-    assert r.returncode == 2, r.stderr
-    assert str(named) in r.stderr and says in r.stderr
+    code, _, err = fxswarm_here("run", SCENARIO, "--secure", folder, "--out", out, "--quiet")
+    assert code == 2, err
+    assert str(named) in err and says in err
     assert not (out / "logs").exists()  # no process was started
-    r = fxswarm("agent", str(SCENARIO), "--id", "3", "--secure", str(folder), "--connect", "tls/127.0.0.1:9")
-    assert r.returncode == 2 and str(named) in r.stderr
+    code, _, err = fxswarm_here("agent", SCENARIO, "--id", "3", "--secure", folder, "--connect", "tls/127.0.0.1:9")
+    assert code == 2 and str(named) in err
 
 
 @pytest.mark.parametrize("how,says", [("missing", "missing"), ("wrong-ca", "does not verify")])
-def test_attach_names_a_bad_key_file_before_it_connects(tmp_path, keys, how, says):
+def test_attach_names_a_bad_key_file_before_it_connects(tmp_path, keys, how, says, fxswarm_here):
     folder = tmp_path / "keys"
     shutil.copytree(keys, folder)
     named = folder / "observer.pem"
@@ -149,31 +149,31 @@ def test_attach_names_a_bad_key_file_before_it_connects(tmp_path, keys, how, say
         shutil.copy(other / "observer.key", folder / "observer.key")
     out = tmp_path / "seen"
     # Port 9 (discard): nothing answers there, so only a check before connecting ends this at once.
-    r = fxswarm("attach", "tls/127.0.0.1:9", "--swarm", "s", "--out", str(out), "--secure", str(folder),
-                "--timeout", "30")
-    assert r.returncode == 2, r.stderr
-    (line,) = r.stderr.strip().splitlines()
+    code, _, err = fxswarm_here("attach", "tls/127.0.0.1:9", "--swarm", "s", "--out", out, "--secure", folder,
+                                "--timeout", "30")
+    assert code == 2, err
+    (line,) = err.strip().splitlines()
     assert str(named) in line and says in line
     assert not out.exists()
-    r = fxswarm("attach", "tcp/127.0.0.1:9", "--swarm", "s", "--out", str(out), "--secure", str(keys))
-    assert r.returncode == 2 and "tls/HOST:PORT" in r.stderr and not out.exists()
+    code, _, err = fxswarm_here("attach", "tcp/127.0.0.1:9", "--swarm", "s", "--out", out, "--secure", keys)
+    assert code == 2 and "tls/HOST:PORT" in err and not out.exists()
 
 
-def test_secure_mode_is_plaintext_free_and_an_audited_run_is_routed(tmp_path, keys):
-    r = fxswarm("run", str(SCENARIO), "--secure", str(keys), "--audit", "--topology", "mesh",
-                "--out", str(tmp_path / "r"))
-    assert r.returncode == 2 and "routed" in r.stderr
-    r = fxswarm("agent", str(SCENARIO), "--id", "1", "--secure", str(keys), "--connect", "tcp/127.0.0.1:7447")
-    assert r.returncode == 2 and "tls/" in r.stderr
-    r = fxswarm("world", str(SCENARIO), "--secure", str(keys), "--mode", "peer", "--connect", "tls/127.0.0.1:9",
-                "--listen", "tcp/127.0.0.1:0")
-    assert r.returncode == 2 and "--listen tcp/127.0.0.1:0" in r.stderr and "tls/" in r.stderr
-    r = fxswarm("world", str(SCENARIO), "--secure", str(keys), "--mode", "router", "--connect", "tls/127.0.0.1:9")
-    assert r.returncode == 2 and "client" in r.stderr
-    r = fxswarm("world", str(SCENARIO), "--mode", "peer", "--access", str(keys / "access.json"))
-    assert r.returncode == 2 and "--secure" in r.stderr
-    r = fxswarm("router", "--secure", str(keys), "--listen", "tcp/127.0.0.1:0")
-    assert r.returncode == 2 and "tls/" in r.stderr
+def test_secure_mode_is_plaintext_free_and_an_audited_run_is_routed(tmp_path, keys, fxswarm_here):
+    code, _, err = fxswarm_here("run", SCENARIO, "--secure", keys, "--audit", "--topology", "mesh",
+                                "--out", tmp_path / "r")
+    assert code == 2 and "routed" in err
+    code, _, err = fxswarm_here("agent", SCENARIO, "--id", "1", "--secure", keys, "--connect", "tcp/127.0.0.1:7447")
+    assert code == 2 and "tls/" in err
+    code, _, err = fxswarm_here("world", SCENARIO, "--secure", keys, "--mode", "peer", "--connect", "tls/127.0.0.1:9",
+                                "--listen", "tcp/127.0.0.1:0")
+    assert code == 2 and "--listen tcp/127.0.0.1:0" in err and "tls/" in err
+    code, _, err = fxswarm_here("world", SCENARIO, "--secure", keys, "--mode", "router", "--connect", "tls/127.0.0.1:9")
+    assert code == 2 and "client" in err
+    code, _, err = fxswarm_here("world", SCENARIO, "--mode", "peer", "--access", keys / "access.json")
+    assert code == 2 and "--secure" in err
+    code, _, err = fxswarm_here("router", "--secure", keys, "--listen", "tcp/127.0.0.1:0")
+    assert code == 2 and "tls/" in err
 
 
 def test_rights_follow_the_nodes_subscriptions_and_the_graph(sc):
@@ -244,7 +244,7 @@ def test_secure_compose_gives_each_service_its_own_key_as_secrets(tmp_path, sc, 
     assert "FXSWARM_SECURE" in text and json.loads((keys / "access.json").read_text())["default_permission"] == "deny"
 
 
-def test_a_mesh_peer_needs_a_server_certificate_and_the_rules(tmp_path, keys):
+def test_a_mesh_peer_needs_a_server_certificate_and_the_rules(tmp_path, keys, fxswarm_here):
     """Keys of an older fxswarm (only the router's certificate could serve TLS) are named up front, as is
     a missing rules file; a client still takes them."""
     from fxswarm.security.keys import _cert_pem, _key_pem, make_ca, make_leaf
@@ -265,12 +265,12 @@ def test_a_mesh_peer_needs_a_server_certificate_and_the_rules(tmp_path, keys):
     with pytest.raises(KeyFileError, match="not a TLS server certificate") as err:
         checked(old, "agent-1", server=True)
     assert str(old / "agent-1.pem") in str(err.value)
-    r = fxswarm("agent", str(SCENARIO), "--id", "1", "--secure", str(old), "--mode", "peer",
-                "--connect", "tls/127.0.0.1:9")
-    assert r.returncode == 2 and "agent-1.pem" in r.stderr and "server" in r.stderr
-    r = fxswarm("agent", str(SCENARIO), "--id", "1", "--secure", str(keys), "--mode", "peer",
-                "--connect", "tls/127.0.0.1:9", "--access", str(tmp_path / "nowhere.json"))
-    assert r.returncode == 2 and "nowhere.json: missing" in r.stderr
+    code, _, err = fxswarm_here("agent", SCENARIO, "--id", "1", "--secure", old, "--mode", "peer",
+                                "--connect", "tls/127.0.0.1:9")
+    assert code == 2 and "agent-1.pem" in err and "server" in err
+    code, _, err = fxswarm_here("agent", SCENARIO, "--id", "1", "--secure", keys, "--mode", "peer",
+                                "--connect", "tls/127.0.0.1:9", "--access", tmp_path / "nowhere.json")
+    assert code == 2 and "nowhere.json: missing" in err
 
 
 def test_each_secure_session_trusts_only_the_router_to_forward_and_a_peer_enforces_the_rules(sc):

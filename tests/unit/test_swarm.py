@@ -3,8 +3,6 @@ explicit form, ``fxswarm expand`` prints it, and bad input is refused naming fil
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import tomllib
 
 import numpy as np
@@ -119,21 +117,21 @@ def test_robots_or_graph_beside_a_swarm_table_is_refused():
         parse(tomllib.loads(BASE + "[graph]\ntopology = 'line'\npinned = [1]\n[swarm]\ncount = 3\n"), "gen.toml")
 
 
-def test_fxswarm_expand_prints_the_explicit_form_and_exits_2_on_bad_input(tmp_path):
+def test_fxswarm_expand_prints_the_explicit_form_and_exits_2_on_bad_input(tmp_path, fxswarm_here):
     good = tmp_path / "good.toml"
     good.write_text(BASE + '[swarm]\ncount = 12\nformation = "circle"\ngraph = "ring"\nbox = 1.0\nseed = 2\n')
-    out = subprocess.run([sys.executable, "-m", "fxswarm.cli", "expand", str(good)], capture_output=True, text=True)
-    assert out.returncode == 0, out.stderr
+    code, printed, err = fxswarm_here("expand", good)
+    assert code == 0, err
     explicit = tmp_path / "explicit.toml"
-    explicit.write_text(out.stdout)
-    data = tomllib.loads(out.stdout)
+    explicit.write_text(printed)
+    data = tomllib.loads(printed)
     assert "swarm" not in data and len(data["robots"]) == 12
     a, b = load(good), load(explicit)  # the printed form is the same scenario
     assert np.array_equal(a.a, b.a) and [r.position for r in a.robots] == [r.position for r in b.robots]
     bad = tmp_path / "bad.toml"
     bad.write_text(BASE + '[swarm]\ncount = 12\ngraph = "star-of-david"\n')
-    out = subprocess.run([sys.executable, "-m", "fxswarm.cli", "expand", str(bad)], capture_output=True, text=True)
-    assert out.returncode == 2 and f"{bad}: swarm.graph: expected one of" in out.stderr and not out.stdout
+    code, printed, err = fxswarm_here("expand", bad)
+    assert code == 2 and f"{bad}: swarm.graph: expected one of" in err and not printed
 
 
 def test_a_campaign_grid_over_swarm_count_and_graph_parameters(tmp_path):
