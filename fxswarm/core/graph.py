@@ -29,7 +29,8 @@ def topology_edges(name: str, n: int) -> list[tuple[int, int]]:
 class SparseGraph:
     """Weights ``a_ij`` (n, n) held by rows (CSR): robot ``i``'s neighbours (0-based, ascending)
     are ``indices[indptr[i]:indptr[i + 1]]``, their weights (all > 0) the same run of
-    ``weights``. A 10 000-robot swarm's dense matrix is 763 MB; this is its links only."""
+    ``weights``. A 10 000-robot swarm's dense matrix is 763 MB; this is its links only. Plain
+    numpy, not scipy.sparse: scipy is the optional ``scale`` extra, and every scenario needs this."""
 
     indptr: np.ndarray  # (n + 1,) int
     indices: np.ndarray  # (links,) int, ascending within a row
