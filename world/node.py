@@ -30,7 +30,7 @@ from fxswarm.core import bus as topics
 from fxswarm.core.drive import step_double_integrator, step_unicycle
 from fxswarm.core.messages import Clock, Command, Message, Sense, WorldState
 from fxswarm.core.motion import Static
-from fxswarm.core.nearest import NearestCache, have_tree, nearest_objects_blocked, nearest_objects_tree
+from fxswarm.core.nearest import NearestCache, have_tree, nearest_objects_blocked, nearest_objects_tree, norms
 from fxswarm.core.pacing import Deadline, Pacer, WallClock
 from fxswarm.core.scenario import Scenario
 from fxswarm.core.sensing import Sensors
@@ -56,8 +56,7 @@ def nearest_objects(p: np.ndarray, v: np.ndarray, obstacles: np.ndarray, obstacl
         return nearest_objects_blocked(p, v, obstacles, obstacle_v)  # without scipy: in blocks of rows
     objects = np.concatenate([obstacles, p])
     object_v = np.concatenate([obstacle_v, v])
-    diff = p[:, None, :] - objects[None, :, :]
-    dist = np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
+    dist = norms(p[:, None, :] - objects[None, :, :])
     m = len(obstacles)
     rows, own = _self_index(n, m)
     dist[rows, own] = np.inf  # a robot is not its own nearest object

@@ -30,7 +30,8 @@ def distances(p: np.ndarray, objects: np.ndarray) -> np.ndarray:
 
 
 def norms(diff: np.ndarray) -> np.ndarray:
-    """``|diff_ij|`` of differences (n, c, 3), summed as the world sums them (einsum)."""
+    """``|diff_ij|`` of differences (n, c, 3): the world's distance (world.node.nearest_objects),
+    one definition, so that every search gives its bits."""
     return np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
 
 
@@ -53,8 +54,7 @@ def nearest_objects_blocked(p: np.ndarray, v: np.ndarray, obstacles: np.ndarray,
     choice, best, obstacle_dist = np.zeros(n, dtype=np.intp), np.zeros(n), np.full(n, np.inf)
     for start in range(0, n, block):
         rows = np.arange(start, min(n, start + block))
-        diff = p[rows, None, :] - objects[None, :, :]
-        dist = np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
+        dist = norms(p[rows, None, :] - objects[None, :, :])
         dist[rows - start, m + rows] = np.inf
         if m:
             obstacle_dist[rows] = dist[:, :m].min(axis=1)
