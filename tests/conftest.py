@@ -10,18 +10,60 @@ import pytest
 
 from fxswarm.launch.launcher import free_port
 from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions
-from support import PAPER_FAST, RECORDED_S, record_in_process
+from support import PAPER_FAST, RECORDED_S, once_per_session, record_in_process
 
 # On CI (CI=true) a skip, at collection too, fails unless .ci/run declared its prerequisite missing (docs/testing.md).
 from prerequisites import pytest_make_collect_report, pytest_runtest_makereport  # noqa: F401  (pytest hooks)
 
 
+#: The integration modules that took longest (wall, --durations, docs/testing.md): started first
+#: on their workers, so the run does not end on one of them alone. A stale list costs only time.
+LONGEST_FIRST = ("test_runtime_lockstep", "test_runtime_realtime", "test_router_restart", "test_runtime_shutdown",
+                 "test_secure_swarm", "test_campaign_cli")
+
+
 def pytest_collection_modifyitems(items):
     """A test that asks for the ROS 2 modules (fixtures ``ros2``, ``ros2_msgs``, which need
-    prerequisite ros2) carries its marker, as prerequisites.py lists tests by marker."""
+    prerequisite ros2) carries its marker, as prerequisites.py lists tests by marker.
+
+    Then the order in which ``--dist loadscope`` hands the groups out (pytest_xdist_make_scheduler):
+    the docker layer, LONGEST_FIRST, the other integration modules, and the unit modules last:
+    seconds each, they fill the workers' ends."""
     for item in items:
         if {"ros2", "ros2_msgs"} & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.ros2)
+
+    def rank(item) -> int:
+        if item.get_closest_marker("docker"):
+            return -1
+        if item.path.parent.name == "unit":
+            return len(LONGEST_FIRST) + 1
+        stem = item.path.stem
+        return LONGEST_FIRST.index(stem) if stem in LONGEST_FIRST else len(LONGEST_FIRST)
+    items.sort(key=rank)  # stable: in their order within each rank
+
+
+def scope(nodeid: str) -> str:
+    """The group a test runs in under `make test`: the docker layer is one (its compose projects
+    and stacks one at a time, as their bounds were measured, and one swarm-mode engine for the
+    session; two at once, beside the integration layer, kept the machine at load 45 and failed),
+    and any other test goes with its module, whose fixtures are then made once."""
+    module = nodeid.split("::")[0]
+    return "tests/docker" if module.startswith("tests/docker/") else module
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """``--dist loadscope`` with :func:`scope`'s groups. (pytest-xdist's own ``xdist_group`` marks do
+    nothing under pytest 9: they rename a node id that pytest no longer reads.)"""
+    if config.getvalue("dist") != "loadscope":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class Groups(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return scope(nodeid)
+
+    return Groups(config, log)
 
 
 @pytest.fixture
@@ -111,8 +153,7 @@ def run_dir(tmp_path_factory):
 def paper_run(tmp_path_factory, worker_id):
     """configs/paper.toml as shipped, its 300 s simulated once per test session (about 7 s of CPU)
     for the tests that only read it: (scenario, summary, trajectory). The pytest-xdist workers
-    share one run folder: the first to ask simulates, under a lock, the other reads its files."""
-    import fcntl
+    share one run folder: the first to ask simulates, the others read its files."""
     import json
 
     import numpy as np
@@ -121,11 +162,8 @@ def paper_run(tmp_path_factory, worker_id):
     from fxswarm.launch.sim import Simulation
     from fxswarm.runtime.output import write_run
 
-    base = tmp_path_factory.getbasetemp()
-    folder = (base if worker_id == "master" else base.parent) / "paper-run"  # a worker's parent: the session's
     sc = load(PAPER_FAST.parent / "paper.toml")
-    with open(f"{folder}.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
+    with once_per_session(tmp_path_factory, worker_id, "paper-run") as folder:
         if not (folder / "summary.json").is_file():  # written last
             sim = Simulation(sc)
             write_run(folder, sim.run(), sim.trajectory())

@@ -3,6 +3,9 @@
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
+import socket
 import sys
 import tomllib
 from pathlib import Path
@@ -225,3 +228,25 @@ def measured(test: str, **values) -> None:
     bound (docs/testing.md "Real-time bounds")."""
     print("MEASURED", test, " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                                      for k, v in values.items()), flush=True)
+
+
+@contextlib.contextmanager
+def once_per_session(tmp_path_factory, worker_id: str, name: str):
+    """A path (``name``, not created) that every pytest-xdist worker of this session shares, held
+    under a lock while the block runs: the first worker to enter makes what belongs there, the
+    others find it made."""
+    base = tmp_path_factory.getbasetemp()
+    path = (base if worker_id == "master" else base.parent) / name  # a worker's parent: the session's
+    with open(f"{path}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        yield path
+
+
+@contextlib.contextmanager
+def port_nobody_listens_on():
+    """A local TCP port where a connection is refused, held (bound, never listening) for the
+    block: free_port() would name one that a test on another pytest-xdist worker can be handed and
+    start a router on meanwhile (an attach that must wait for its router once reached theirs)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as held:
+        held.bind(("127.0.0.1", 0))
+        yield held.getsockname()[1]

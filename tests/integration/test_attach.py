@@ -22,7 +22,7 @@ import pytest
 
 from fxswarm.launch.launcher import free_port
 
-from support import stop_processes, wait_for_line
+from support import port_nobody_listens_on, stop_processes, wait_for_line
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.timeout(600)]
 
@@ -123,19 +123,20 @@ def test_attach_waiting_for_a_router_stops_at_once_on_a_signal(tmp_path, sig, co
     ``background``: started as ``cmd &`` in a script (SIGINT ignored), where Python installs no
     KeyboardInterrupt, a SIGINT went unheeded too (as the suite itself, run that way, showed)."""
     log = tmp_path / "attach.log"
-    attach = fxswarm("attach", f"tcp/127.0.0.1:{free_port()}", "--swarm", "nobody", "--out", str(tmp_path / "seen"),
-                     log=log, preexec_fn=sigint_ignored if background else None)
-    try:
-        deadline = time.monotonic() + 60
-        while "waiting for the router" not in log.read_text():  # its own line: it is in the wait
-            assert attach.poll() is None and time.monotonic() < deadline, log.read_text()
-            time.sleep(0.05)
-        attach.send_signal(sig)
-        assert attach.wait(10) == code, log.read_text()
-    finally:
-        if attach.poll() is None:
-            attach.kill()
-            attach.wait()
+    with port_nobody_listens_on() as port:
+        attach = fxswarm("attach", f"tcp/127.0.0.1:{port}", "--swarm", "nobody", "--out", str(tmp_path / "seen"),
+                         log=log, preexec_fn=sigint_ignored if background else None)
+        try:
+            deadline = time.monotonic() + 60
+            while "waiting for the router" not in log.read_text():  # its own line: it is in the wait
+                assert attach.poll() is None and time.monotonic() < deadline, log.read_text()
+                time.sleep(0.05)
+            attach.send_signal(sig)
+            assert attach.wait(10) == code, log.read_text()
+        finally:
+            if attach.poll() is None:
+                attach.kill()
+                attach.wait()
 
 
 @pytest.mark.slow

@@ -19,7 +19,7 @@ from fxswarm.launch.launcher import free_port
 from fxswarm.study.campaign import outcome
 from fxswarm.study.campaign_plan import Criteria
 
-from support import PAPER_FAST
+from support import PAPER_FAST, port_nobody_listens_on
 
 BIN = Path(sys.executable).parent
 FXSWARM = str(BIN / "fxswarm")
@@ -283,8 +283,9 @@ def test_a_users_law_modules_beside_the_scenario_are_sent_to_the_dask_workers(tm
 
 
 def test_an_executor_that_does_not_answer_is_refused_in_one_line(tmp_path):
-    proc = subprocess.run(campaign_argv(tmp_path / "c", "--executor", f"dask://127.0.0.1:{free_port()}"),
-                          capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL)
+    with port_nobody_listens_on() as port:
+        proc = subprocess.run(campaign_argv(tmp_path / "c", "--executor", f"dask://127.0.0.1:{port}"),
+                              capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL)
     assert proc.returncode == 2 and "no Dask scheduler answers there" in proc.stderr, proc.stderr
 
 

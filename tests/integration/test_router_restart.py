@@ -311,13 +311,12 @@ def test_health_passes_while_the_router_cannot_be_reached_only_when_asked(tmp_pa
     the orchestrator kills every task; by hand, an unreachable router is still a failure."""
     import subprocess
 
-    from fxswarm.launch.launcher import free_port
+    from support import fxswarm_command, port_nobody_listens_on
 
-    from support import fxswarm_command
-
-    nobody = f"tcp/127.0.0.1:{free_port()}"
-    ask = fxswarm_command("health", "agent", "1", "--swarm", "s", "--connect", nobody, "--timeout", "0.5", "--quiet")
-    plain = subprocess.run(ask, capture_output=True, text=True, timeout=60)
-    lenient = subprocess.run([*ask, "--router-down-ok"], capture_output=True, text=True, timeout=60)
+    with port_nobody_listens_on() as port:
+        ask = fxswarm_command("health", "agent", "1", "--swarm", "s", "--connect", f"tcp/127.0.0.1:{port}",
+                              "--timeout", "0.5", "--quiet")
+        plain = subprocess.run(ask, capture_output=True, text=True, timeout=60)
+        lenient = subprocess.run([*ask, "--router-down-ok"], capture_output=True, text=True, timeout=60)
     assert plain.returncode == 1 and "cannot reach the router" in plain.stderr
     assert lenient.returncode == 0 and "not judged" in lenient.stderr

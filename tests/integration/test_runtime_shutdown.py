@@ -17,10 +17,9 @@ from pathlib import Path
 
 import pytest
 
-from fxswarm.launch.launcher import free_port
 from fxswarm.testing import scenario_with
 
-from support import PAPER_FAST, REPO, fxswarm_command
+from support import PAPER_FAST, REPO, fxswarm_command, port_nobody_listens_on
 
 
 def children_of(pid: int) -> dict[int, str]:
@@ -183,29 +182,29 @@ def test_an_exit_at_run_over_is_planned_even_while_the_world_is_still_there(tmp_
 
 @pytest.mark.zenoh
 def test_a_client_waiting_for_its_router_says_so_and_hears_ctrl_c(tmp_path):
-    port = free_port()  # nothing listens there
-    proc = subprocess.Popen(fxswarm_command("leader", str(PAPER_FAST), "--swarm", "nobody", "--mode", "client",
-                                         "--connect", f"tcp/127.0.0.1:{port}", "--out", str(tmp_path)),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        wait_for_line(proc, f"waiting for the router at tcp/127.0.0.1:{port}", timeout=60)
-        proc.send_signal(signal.SIGINT)
-        code = proc.wait(timeout=60)  # how fast: benchmarks/bench_shutdown.py client_ctrl_c_s
-        assert code == 130
-        assert "Traceback" not in proc.stderr.read()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+    with port_nobody_listens_on() as port:
+        proc = subprocess.Popen(fxswarm_command("leader", str(PAPER_FAST), "--swarm", "nobody", "--mode", "client",
+                                             "--connect", f"tcp/127.0.0.1:{port}", "--out", str(tmp_path)),
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            wait_for_line(proc, f"waiting for the router at tcp/127.0.0.1:{port}", timeout=60)
+            proc.send_signal(signal.SIGINT)
+            code = proc.wait(timeout=60)  # how fast: benchmarks/bench_shutdown.py client_ctrl_c_s
+            assert code == 130
+            assert "Traceback" not in proc.stderr.read()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
 
 
 @pytest.mark.zenoh
 def test_a_client_gives_up_on_its_router_after_connect_timeout_with_a_clear_error(tmp_path):
-    port = free_port()
-    done = subprocess.run(fxswarm_command("agent", str(PAPER_FAST), "--id", "2", "--swarm", "nobody", "--mode", "client",
-                                       "--connect", f"tcp/127.0.0.1:{port}", "--connect-timeout", "1.5",
-                                       "--out", str(tmp_path)),
-                          capture_output=True, text=True, timeout=60)
+    with port_nobody_listens_on() as port:
+        done = subprocess.run(fxswarm_command("agent", str(PAPER_FAST), "--id", "2", "--swarm", "nobody",
+                                           "--mode", "client", "--connect", f"tcp/127.0.0.1:{port}",
+                                           "--connect-timeout", "1.5", "--out", str(tmp_path)),
+                              capture_output=True, text=True, timeout=60)
     assert done.returncode == 1
     assert f"fxswarm agent 2: no router answered at tcp/127.0.0.1:{port} within 1.5 s" in done.stderr, done.stderr
     assert "Traceback" not in done.stderr
