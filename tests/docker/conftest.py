@@ -11,20 +11,16 @@ import pytest
 
 from docker_support import IMAGE, TAG, require_docker, run, sh
 from prerequisites import unavailable
-from support import REPO, once_per_session
+from support import REPO
 
 
 @pytest.fixture(scope="session")
-def role_images(tmp_path_factory, worker_id) -> str:
-    """The role images (tag ``test``), built once per session on the registry-free local bases:
-    by the first pytest-xdist worker to ask, the others waiting for it."""
+def role_images() -> str:
+    """The role images (tag ``test``), built once per session on the registry-free local bases."""
     require_docker()
     if os.environ.get("FXSWARM_IMAGES_BUILT") != "1":  # =1: use the fxswarm-*:test images as they are
-        with once_per_session(tmp_path_factory, worker_id, f"role-images-{TAG}") as built:
-            if not built.exists():
-                run([str(REPO / "docker" / "build-images.sh")], 1800, "docker/build-images.sh",
-                     env={**os.environ, "FXSWARM_TAG": TAG})
-                built.write_text(IMAGE)
+        run([str(REPO / "docker" / "build-images.sh")], 1800, "docker/build-images.sh",
+             env={**os.environ, "FXSWARM_TAG": TAG})
     return IMAGE
 
 
@@ -40,7 +36,7 @@ def swarm_mode():
     left again at the end, and the docker_gwbridge network that init made is removed)."""
     require_docker()
     state = sh("docker", "info", "--format", "{{.Swarm.LocalNodeState}}").strip()
-    networks = swarm_networks()
+    networks = set(sh("docker", "network", "ls", "--format", "{{.Name}}").split())
     inited = False
     if state == "inactive":
         sh("docker", "swarm", "init", "--advertise-addr", "127.0.0.1", timeout=120)
@@ -53,7 +49,7 @@ def swarm_mode():
         sh("docker", "swarm", "leave", "--force", timeout=120, check=False)
         if "docker_gwbridge" not in networks:  # swarm init makes it and leave keeps it: not ours to keep
             stuck = remove_gateway_bridge()
-    left = swarm_networks()
+    left = set(sh("docker", "network", "ls", "--format", "{{.Name}}").split())
     if stuck is not None and left - networks == {"docker_gwbridge"}:
         # Docker 20.10 can keep a phantom endpoint on this bridge after a task container was killed
         # (moby/moby#37018: "has active endpoints", none listed); only a daemon restart clears it.
@@ -63,13 +59,6 @@ def swarm_mode():
         left.discard("docker_gwbridge")
     assert left == networks, "networks as found"
     assert sh("docker", "info", "--format", "{{.Swarm.LocalNodeState}}").strip() == state, "swarm mode as found"
-
-
-def swarm_networks() -> set[str]:
-    """The engine's networks but those of compose projects, which come and go while the swarm is
-    up (the compose tests', run between the stack tests, or anyone's): not swarm mode's to keep."""
-    rows = sh("docker", "network", "ls", "--format", '{{.Name}} {{.Label "com.docker.compose.project"}}').splitlines()
-    return {row.split()[0] for row in rows if len(row.split()) == 1}
 
 
 def remove_gateway_bridge(timeout: float = 30.0) -> str | None:
