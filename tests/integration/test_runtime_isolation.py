@@ -24,9 +24,16 @@ def shouts(k: int) -> list:
     return out
 
 
+#: The token the world waits for before its clock starts (``fxswarm world --wait-for``).
+GATE = "test-gate"
+
+
 @pytest.mark.zenoh
 def test_a_second_swarm_on_the_same_router_never_reaches_the_first(launch_swarm):
-    swarm = launch_swarm(PAPER_FAST, duration=1.0)
+    """The intruders shout on every key of the swarm's for the whole of its run. Its clock is held
+    (``--wait-for``) until they hear each other: a lock-step second ticks as fast as the robots
+    answer, and on a loaded machine the run was over before they had shouted three times."""
+    swarm = launch_swarm(PAPER_FAST, duration=2.0, world_args=("--wait-for", f"{GATE}/0"))
     options = ZenohOptions("client", (swarm.swarm.endpoint,), (), False)
     shouter, listener = ZenohBus("intruders", options), ZenohBus("intruders", options)
     try:
@@ -41,6 +48,9 @@ def test_a_second_swarm_on_the_same_router_never_reaches_the_first(launch_swarm)
         sent = 0
         k = 0
         while swarm.swarm.children["world"].running():
+            if k == 1:  # they have shouted once: the swarm's clock starts
+                assert swarm.sim_time() < 0, "the world ticked before the gate opened"
+                swarm.swarm.bus.declare_alive(GATE, 0)
             k += 1
             for topic, msg in shouts(k):
                 shouter.publish(topic, msg)
