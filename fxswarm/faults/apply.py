@@ -63,22 +63,15 @@ class SwarmFaults:
 
     def poll(self) -> list:
         """Real time: messages whose delay is over, handed to their nodes; returns what they send."""
-        out = []
-        for node in self.built:
-            inbox = inbox_of(node)
-            if inbox is not None:
-                out += inbox.poll()
-        return out
+        return [out for inbox in self._inboxes() for out in inbox.poll()]
 
     def stop_waiting(self) -> list:
         """Lock-step, nothing left to deliver: every inbox starts the ticks it holds (what their
         nodes wait for will never come); returns what that sends."""
-        out = []
-        for node in self.built:
-            inbox = inbox_of(node)
-            if inbox is not None:
-                out += inbox.stop_waiting()
-        return out
+        return [out for inbox in self._inboxes() for out in inbox.stop_waiting()]
+
+    def _inboxes(self) -> list[FaultyInbox]:
+        return [inbox for inbox in map(inbox_of, self.built) if inbox is not None]
 
     def link_counts(self) -> dict[str, dict[str, int]]:
         inboxes = [g for node in self.built for g in getattr(node, "generations", [node])]
