@@ -444,8 +444,11 @@ def broken_run(project_factory) -> tuple[ComposeProject, FaultObservations]:
         obs.silent_wall_s = float(np.diff(after[:, 0]).max())
         obs.stalest_s = float(after[:, 2].max())
         obs.resumed_at_t = next(t for _, t, age in watcher.cmds[5][reconnected:] if age < FRESH_S)
-        obs.stopped_at_t = stop_world_at(p, watcher, obs.resumed_at_t + SETTLE_S, BROKEN_RUN_S)
+        # The faults' liveliness, taken before the stop: every agent leaves at the end of the run,
+        # and a loaded watcher can see that end during the wait for the stop (the run flew to its
+        # cap while the watcher was a cut behind, at load 13).
         obs.alive_changes = list(watcher.changes)
+        obs.stopped_at_t = stop_world_at(p, watcher, obs.resumed_at_t + SETTLE_S, BROKEN_RUN_S)
     finally:
         watcher.close()
     obs.exit_codes["world"] = p.wait_exit("world", 240)
