@@ -210,7 +210,18 @@ class SwarmUnderTest:
         if keys is None:
             assert sorted(got) == sorted(expected), (sorted(got), sorted(expected))
         for key in keys or expected:
-            assert got[key].dtype == expected[key].dtype and np.array_equal(got[key], expected[key]), key
+            a, b = got[key], expected[key]
+            if a.dtype == b.dtype and np.array_equal(a, b):
+                continue
+            where = f" (dtype {a.dtype}, the simulator's {b.dtype})" if a.dtype != b.dtype else ""
+            if a.shape != b.shape:
+                where += f" (shape {a.shape}, the simulator's {b.shape})"
+            elif not where:
+                where = f": first at index {tuple(int(i) for i in np.argwhere(a != b)[0])} (the tick first)"
+            missed = (self.summary() or {}).get("missed_ticks")
+            if missed:  # a tick closed by the world's --tick-timeout: wall time decided, not the law
+                where += f"; the run closed {missed} tick(s) on its --tick-timeout, which the simulator never does"
+            raise AssertionError(f"{key} differs from fxswarm sim's{where}")
         return summary
 
     def stop(self) -> dict[str, str]:
