@@ -14,13 +14,6 @@ arrived by then (possible over Zenoh), the tick's sensing message is held
 back until it has, so every process sees the same inputs at the same tick.
 A lost sensing message still starts the tick (the world's clock reached the
 robot) but carries the robot's last sensed content, marked as a replay.
-A later tick's sensing is also held while the node has not acted on the
-tick before: the world may move on without this robot (its command to the
-world is lost), and over Zenoh that sensing can overtake what the robot still
-waits for (each subscriber has its own callback thread), so starting the
-next tick then would skip one the simulator acts on. Only the node's giving
-up on a gone sender (:func:`resume`) or the simulator finding nothing left to
-deliver (:meth:`FaultyInbox.stop_waiting`) starts it anyway.
 
 Real time: delays are real time; held messages are released by
 :meth:`FaultyInbox.poll`, which the process loop calls every iteration;
@@ -31,7 +24,6 @@ from __future__ import annotations
 
 import heapq
 import time
-from collections import deque
 from dataclasses import dataclass
 from typing import Callable
 
@@ -99,7 +91,7 @@ class FaultyInbox(NodeWrapper):
         self.order = 0
         self.seen: set[tuple[str, str, int]] = set()  # (sender, kind, tick) arrived, for the due check
         self.last_sense: Sense | None = None
-        self.pending: deque[tuple[str, Sense]] = deque()  # sensing held until its tick may start, in tick order
+        self.pending: tuple[str, Sense] | None = None  # a tick's sensing held until its due messages arrive
         self.tick = -1  # the receiver's current tick (lock-step)
         self.late = 0  # delayed messages that arrived after their release tick (gave up waiting)
         self._fates: dict[tuple, object] = {}  # memo: a fate is asked for several times per tick
@@ -113,7 +105,6 @@ class FaultyInbox(NodeWrapper):
         core = node
         while hasattr(core, "inner"):
             core = core.inner
-        self.core = core
         if hasattr(core, "expects"):
             core.expects = self.expects
 
@@ -197,7 +188,7 @@ class FaultyInbox(NodeWrapper):
         counts.delivered += 1
         for _ in range(fate.copies):
             out += self.node.handle(topic, msg)
-        if self.lockstep and self.pending:
+        if self.lockstep and self.pending is not None:
             out += self._start_pending_tick()
         return out
 
@@ -235,12 +226,11 @@ class FaultyInbox(NodeWrapper):
         else:
             self._count("world", "sense").delivered += 1
             self.last_sense = msg
-        pending = self.pending
-        if pending and pending[-1][1].tick >= msg.tick:
-            pending[-1] = (topic, msg)  # the same tick said again: the newer word on it
-        else:
-            pending.append((topic, msg))
-        return self._start_pending_tick()
+        out: list[topics.Outgoing] = []
+        if self.pending is not None and self.pending[1].tick < msg.tick:
+            out += self._start_pending_tick(force=True)  # the world moved on: stop waiting
+        self.pending = (topic, msg)
+        return out + self._start_pending_tick()
 
     def _due_missing(self, k: int) -> bool:
         """Whether a message delayed into tick ``k`` has not arrived yet."""
@@ -253,38 +243,18 @@ class FaultyInbox(NodeWrapper):
                     return True
         return False
 
-    def _acting(self) -> bool:
-        """Whether the node holds a tick's sensing it has not acted on yet (it waits for its inputs)."""
-        core = self.core
-        sense = getattr(core, "sense", None)
-        return sense is not None and core.acted_tick < sense.tick
-
     def _start_pending_tick(self, force: bool = False) -> list[topics.Outgoing]:
-        """Start each held tick, in order, once the node has acted on the one before and the
-        messages delayed into it have arrived (``force``: at once, whatever is missing)."""
-        out: list[topics.Outgoing] = []
-        pending = self.pending
-        while pending:
-            topic, sense = pending[0]
-            k = sense.tick
-            if not force and (self._acting() or (self.max_delay_ticks and self._due_missing(k))):
-                break
-            pending.popleft()
-            self.tick = k
-            if self.max_delay_ticks and k % 64 == 0:
-                self.seen = {s for s in self.seen if s[2] >= k - self.max_delay_ticks - 1}
-            out += self._release(k) + self.node.handle(topic, sense)
-        return out
-
-    def resume(self) -> list[topics.Outgoing]:
-        """Lock-step: start the held ticks that may start now (after the node acted outside
-        :meth:`handle`, e.g. past a gone sender)."""
-        return self._start_pending_tick() if self.lockstep else []
-
-    def stop_waiting(self) -> list[topics.Outgoing]:
-        """Lock-step: start every held tick now, whatever the node or the inbox still waits for
-        (the simulator, when nothing is left to deliver: what is missing will never come)."""
-        return self._start_pending_tick(force=True) if self.lockstep else []
+        if self.pending is None:
+            return []
+        topic, sense = self.pending
+        k = sense.tick
+        if not force and self.max_delay_ticks and self._due_missing(k):
+            return []
+        self.pending = None
+        self.tick = k
+        if self.max_delay_ticks and k % 64 == 0:
+            self.seen = {s for s in self.seen if s[2] >= k - self.max_delay_ticks - 1}
+        return self._release(k) + self.node.handle(topic, sense)
 
 
 def link_counts(inboxes) -> dict[str, dict[str, int]]:

@@ -3,17 +3,15 @@
 from __future__ import annotations
 
 import dataclasses
-from collections import deque
 
 import numpy as np
 import pytest
 
-from fxswarm.core.bus import InMemoryBus, matches
 from fxswarm.core.metrics import estimate_errors, formation_errors
 from fxswarm.core.scenario import load
 from fxswarm.launch.sim import Simulation
 
-from support import CONFIGS, MIXED_FAULTS, PAPER_FAST, with_faults
+from support import CONFIGS, PAPER_FAST, with_faults
 
 
 def run(sc):
@@ -158,54 +156,3 @@ def test_the_leader_killed_for_good_in_memory_leaves_the_swarm_behind():
     held = summary["faults"]["degraded_ticks"]["no_leader"]
     assert set(held) == {"1", "4"} and all(n >= 640 for n in held.values())  # 3.5 s to the end: 650 ticks
     assert summary["estimate_error_final_m"] > 5.0
-
-
-class StarvingBus(InMemoryBus):
-    """The simulator's bus as Zenoh delivers: each subscription in order, but not in order across
-    subscriptions (a subscriber's callbacks run on its own thread). The subscriptions to ``last``
-    (a key) are served only when nothing else is queued, as callback threads the scheduler
-    leaves waiting."""
-
-    def __init__(self, last: str) -> None:
-        super().__init__()
-        self.last = last
-        self.channels: list[tuple[str, object, deque]] = []
-
-    def subscribe(self, pattern, handler) -> None:
-        self.channels.append((pattern, handler, deque()))
-
-    def publish_all(self, outgoing) -> None:
-        for topic, msg in outgoing:
-            self.counters.sent += 1
-            for pattern, _, queue in self.channels:
-                if matches(pattern, topic):
-                    queue.append((topic, msg))
-
-    def publish(self, topic, msg) -> None:
-        self.publish_all([(topic, msg)])
-
-    def pump(self) -> int:
-        delivered = 0
-        while True:
-            ready = [c for c in self.channels if c[2]]
-            if not ready:
-                return delivered
-            _, handler, queue = ([c for c in ready if c[0] != self.last] or ready)[0]
-            handler(*queue.popleft())
-            delivered += 1
-
-
-@pytest.mark.parametrize("starved", [False, True], ids=["by-subscription", "robot-1-estimates-last"])
-def test_lockstep_with_faults_does_not_depend_on_the_order_across_subscriptions(starved):
-    """Robot 6's command to the world is lost on some ticks (MIXED_FAULTS), so the world moves on
-    without it; its next sensing then overtakes robot 1's estimate it still waits for when that
-    subscription's thread is slow. The robot must act on the tick it waits on all the same (it
-    skipped it: a process run differed from ``fxswarm sim`` under load)."""
-    sc = with_faults(MIXED_FAULTS, duration=1.5)
-    reference = Simulation(sc)
-    reference.run()
-    sim = Simulation(sc, bus=StarvingBus("agent/1/cmd" if starved else ""))  # "": subscriptions in turn
-    summary = sim.run()
-    assert summary["counters"]["missed_ticks"] == 0
-    for key, values in reference.trajectory().items():
-        assert np.array_equal(sim.trajectory()[key], values), key
