@@ -108,6 +108,22 @@ def estimate(robot: int, sender: int | None = None, tick: int = 0):
     return Estimate("agent", robot if sender is None else sender, 1, tick, 0.0, robot, V)
 
 
+# Every kind of link fault at once, strong enough to act within a short run (paper-fast, 1.5 s).
+MIXED_FAULTS = {
+    "seed": 11,
+    "links": [
+        {"link": "agent:*->agent:*", "kinds": ["estimate"], "drop": 0.2, "delay": 0.03, "jitter": 0.02,
+         "duplicate": 0.1, "reorder": 0.1},
+        {"link": "agent:2->agent:3", "burst": {"p_good_bad": 0.05, "p_bad_good": 0.3}},
+        {"link": "leader->agent:1", "drop": 0.3, "delay": 0.01},
+        {"link": "world->agent:5", "kinds": ["sense"], "drop": 0.2},
+        {"link": "agent:6->world", "kinds": ["command"], "drop": 0.1},
+    ],
+    "partitions": [{"start": 0.6, "end": 0.9, "isolate": [3]}],
+    "leader_outages": [{"start": 1.0, "end": 1.2}],
+}
+
+
 def with_faults(faults: dict, **scenario):
     """paper-fast with ``[faults]`` = ``faults`` and ``[scenario]`` keys overridden, parsed."""
     from fxswarm.core.scenario import parse

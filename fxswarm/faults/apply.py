@@ -63,12 +63,15 @@ class SwarmFaults:
 
     def poll(self) -> list:
         """Real time: messages whose delay is over, handed to their nodes; returns what they send."""
-        out = []
-        for node in self.built:
-            inbox = node.node if isinstance(node, Mortal) else node
-            if isinstance(inbox, FaultyInbox):
-                out += inbox.poll()
-        return out
+        return [out for inbox in self._inboxes() for out in inbox.poll()]
+
+    def stop_waiting(self) -> list:
+        """Lock-step, nothing left to deliver: every inbox starts the ticks it holds (what their
+        nodes wait for will never come); returns what that sends."""
+        return [out for inbox in self._inboxes() for out in inbox.stop_waiting()]
+
+    def _inboxes(self) -> list[FaultyInbox]:
+        return [inbox for inbox in map(inbox_of, self.built) if inbox is not None]
 
     def link_counts(self) -> dict[str, dict[str, int]]:
         inboxes = [g for node in self.built for g in getattr(node, "generations", [node])]
@@ -87,8 +90,14 @@ def wrap_for_process(node, role: str, ident: int, plan: FaultPlan, dt: float, lo
     return wrap(node, role, ident, plan, dt, lockstep, lambda: time.monotonic() * speed)
 
 
-def process_counters(node) -> dict:
-    """What a role process adds to its counters file: its inbox's per-link counts."""
+def inbox_of(node) -> FaultyInbox | None:
+    """The inbox filter among ``node``'s wrappers, if it has one."""
     while node is not None and not isinstance(node, FaultyInbox):
         node = getattr(node, "inner", None) if not isinstance(node, Mortal) else node.node
-    return {"links": {k: dict(v.__dict__) for k, v in node.links.items()}} if node is not None else {}
+    return node
+
+
+def process_counters(node) -> dict:
+    """What a role process adds to its counters file: its inbox's per-link counts."""
+    inbox = inbox_of(node)
+    return {"links": {k: dict(v.__dict__) for k, v in inbox.links.items()}} if inbox is not None else {}

@@ -14,6 +14,12 @@ arrived by then (possible over Zenoh), the tick's sensing message is held
 back until it has, so every process sees the same inputs at the same tick.
 A lost sensing message still starts the tick (the world's clock reached the
 robot) but carries the robot's last sensed content, marked as a replay.
+When the plan loses a robot's command to the world, the world moves on
+without it, and over Zenoh that next sensing can overtake a neighbour's
+estimate the robot still waits for (each subscription has its own callback
+thread): it is held, in tick order, until the robot has acted on the tick
+before, as in ``fxswarm sim``. A world that moved on for any other reason
+(its tick timeout, a robot that is down) is followed at once, as before.
 
 Real time: delays are real time; held messages are released by
 :meth:`FaultyInbox.poll`, which the process loop calls every iteration;
@@ -24,6 +30,7 @@ from __future__ import annotations
 
 import heapq
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import Callable
 
@@ -91,7 +98,10 @@ class FaultyInbox(NodeWrapper):
         self.order = 0
         self.seen: set[tuple[str, str, int]] = set()  # (sender, kind, tick) arrived, for the due check
         self.last_sense: Sense | None = None
-        self.pending: tuple[str, Sense] | None = None  # a tick's sensing held until its due messages arrive
+        # Sensing held until its tick may start, in tick order: (topic, msg, wait for the node to
+        # act on the tick before: the world moved on without this robot's lost command).
+        self.pending: deque[tuple[str, Sense, bool]] = deque()
+        self.commands_lost = receiver != "world" and plan.may_lose(receiver, "world", "command")
         self.tick = -1  # the receiver's current tick (lock-step)
         self.late = 0  # delayed messages that arrived after their release tick (gave up waiting)
         self._fates: dict[tuple, object] = {}  # memo: a fate is asked for several times per tick
@@ -105,6 +115,7 @@ class FaultyInbox(NodeWrapper):
         core = node
         while hasattr(core, "inner"):
             core = core.inner
+        self.core = core
         if hasattr(core, "expects"):
             core.expects = self.expects
 
@@ -156,7 +167,8 @@ class FaultyInbox(NodeWrapper):
             return self.node.handle(topic, msg)  # a robot's first estimate, on its command key: not the world's
         kind = KIND_OF.get(type(msg))
         if kind not in FAULTABLE_KINDS:
-            return self.node.handle(topic, msg)
+            out = self.node.handle(topic, msg)
+            return out + self._start_pending_tick() if self.lockstep and self.pending else out
         sender = endpoint(msg)
         # Lock-step: fates by tick (known in advance). Real time: by the sender's sequence
         # number, since a real-time sender may send several messages in one tick.
@@ -188,7 +200,7 @@ class FaultyInbox(NodeWrapper):
         counts.delivered += 1
         for _ in range(fate.copies):
             out += self.node.handle(topic, msg)
-        if self.lockstep and self.pending is not None:
+        if self.lockstep and self.pending:
             out += self._start_pending_tick()
         return out
 
@@ -226,11 +238,38 @@ class FaultyInbox(NodeWrapper):
         else:
             self._count("world", "sense").delivered += 1
             self.last_sense = msg
+        pending = self.pending
+        if pending and msg.tick <= pending[-1][1].tick:
+            if msg.tick == pending[-1][1].tick:  # the same tick said again: the newer word on it
+                pending[-1] = (topic, msg, pending[-1][2])
+            return []  # (an older tick's: overtaken by the one held)
+        waits = self.commands_lost and self._moved_on_without_me(msg.tick)
         out: list[topics.Outgoing] = []
-        if self.pending is not None and self.pending[1].tick < msg.tick:
-            out += self._start_pending_tick(force=True)  # the world moved on: stop waiting
-        self.pending = (topic, msg)
+        if pending and not waits:
+            out += self._start_pending_tick(force=True)  # the world gave up waiting: stop waiting too
+        pending.append((topic, msg, waits))
         return out + self._start_pending_tick()
+
+    def _moved_on_without_me(self, k: int) -> bool:
+        """Whether the world reached tick ``k`` without this robot's commands because the plan lost
+        each one since the oldest tick the robot has not acted on (so in ``fxswarm sim`` it acts on
+        each of those ticks in turn), not because it gave up waiting or the robot was down."""
+        sense = getattr(self.core, "sense", None)
+        if sense is not None and self.core.acted_tick < sense.tick:
+            first = sense.tick
+        elif self.pending:
+            first = self.pending[0][1].tick
+        else:
+            return False
+        plan, me = self.plan, self.receiver
+        return first < k and all(
+            not (plan.processes and plan.down(me, j * self.dt)) and plan.fate(me, "world", "command", j, j * self.dt).lost
+            for j in range(first, k))
+
+    def _acting(self) -> bool:
+        """Whether the node holds a tick's sensing it has not acted on yet."""
+        sense = getattr(self.core, "sense", None)
+        return sense is not None and self.core.acted_tick < sense.tick
 
     def _due_missing(self, k: int) -> bool:
         """Whether a message delayed into tick ``k`` has not arrived yet."""
@@ -244,17 +283,34 @@ class FaultyInbox(NodeWrapper):
         return False
 
     def _start_pending_tick(self, force: bool = False) -> list[topics.Outgoing]:
-        if self.pending is None:
-            return []
-        topic, sense = self.pending
-        k = sense.tick
-        if not force and self.max_delay_ticks and self._due_missing(k):
-            return []
-        self.pending = None
-        self.tick = k
-        if self.max_delay_ticks and k % 64 == 0:
-            self.seen = {s for s in self.seen if s[2] >= k - self.max_delay_ticks - 1}
-        return self._release(k) + self.node.handle(topic, sense)
+        """Start each held tick, in order, once the messages delayed into it have arrived and, if
+        it waits for that, the node has acted on the tick before (``force``: at once, all)."""
+        out: list[topics.Outgoing] = []
+        pending = self.pending
+        while pending:
+            topic, sense, waits = pending[0]
+            k = sense.tick
+            if not force and ((waits and self._acting()) or (self.max_delay_ticks and self._due_missing(k))):
+                break
+            pending.popleft()
+            self.tick = k
+            if self.max_delay_ticks and k % 64 == 0:
+                self.seen = {s for s in self.seen if s[2] >= k - self.max_delay_ticks - 1}
+            out += self._release(k) + self.node.handle(topic, sense)
+        return out
+
+    def resume(self) -> list[topics.Outgoing]:
+        """Lock-step: start the held ticks that may start now (the node acted outside
+        :meth:`handle`: past a gone sender)."""
+        return self._start_pending_tick() if self.lockstep and self.pending else []
+
+    def stop_waiting(self) -> list[topics.Outgoing]:
+        """Lock-step: start every held tick now if one waits for the node to act (the simulator,
+        when nothing is left to deliver: what the node waits for will never come). A tick held
+        only for delayed messages is left to the world's timeout, as it always was."""
+        if self.lockstep and any(waits for _, _, waits in self.pending):
+            return self._start_pending_tick(force=True)
+        return []
 
 
 def link_counts(inboxes) -> dict[str, dict[str, int]]:
@@ -280,7 +336,10 @@ def wrap(node, role: str, ident: int | str, plan: FaultPlan, dt: float, lockstep
     and role processes alike), so both see the same faults.
     """
     receiver = receiver_name(role, ident)
-    if role not in ("agent", "world") or not plan.touches(receiver):
+    if role not in ("agent", "world"):
+        return node
+    # A robot whose commands the plan may lose needs one too: the world moves on without it.
+    if not (plan.touches(receiver) or (role == "agent" and plan.may_lose(receiver, "world", "command"))):
         return node
     return FaultyInbox(node, receiver, plan, dt, lockstep, clock)
 

@@ -234,6 +234,12 @@ class FaultPlan:
             return True
         return any(fnmatchcase(receiver, r.dst) for r in self.rules)
 
+    def may_lose(self, sender: str, receiver: str, kind: str) -> bool:
+        """Whether a link rule or a cut may lose some of ``sender``'s ``kind`` messages to
+        ``receiver`` (whatever their tick)."""
+        return bool(self.cuts) or any(r.matches(sender, receiver, kind) and (r.drop > 0 or r.burst is not None)
+                                      for r in self.rules)
+
     def lie_of(self, robot: int) -> Lie | None:
         """Robot ``robot``'s lie, if the plan makes it a liar (at most one per robot)."""
         return next((x for x in self.lies if x.robot == robot), None)

@@ -104,7 +104,9 @@ class Simulation:
             if self.bus.pump() == 0:
                 # Nothing left to deliver yet the tick did not complete: a node is waiting
                 # on a message that will never come (only faults cause this in-process).
-                self.bus.publish_all(self.world.timeout())
+                # A robot holding a later tick's sensing stops waiting first; else the world.
+                held = self.faults.stop_waiting()
+                self.bus.publish_all(held if held else self.world.timeout())
             now = time.perf_counter()
             if progress is not None and now - last_report > 0.5:
                 progress(self.world, self.world.tick / (now - start))

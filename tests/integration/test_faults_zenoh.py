@@ -20,23 +20,7 @@ from fxswarm.runtime.zenoh_bus import ZenohBus, ZenohOptions, check_sender
 from fxswarm.testing import dump_toml
 from fxswarm.core.scenario import directed_links
 
-from support import CONFIGS, PAPER_FAST
-
-# Every kind of link fault at once, strong enough to act within a short run.
-MIXED_FAULTS = {
-    "seed": 11,
-    "links": [
-        {"link": "agent:*->agent:*", "kinds": ["estimate"], "drop": 0.2, "delay": 0.03, "jitter": 0.02,
-         "duplicate": 0.1, "reorder": 0.1},
-        {"link": "agent:2->agent:3", "burst": {"p_good_bad": 0.05, "p_bad_good": 0.3}},
-        {"link": "leader->agent:1", "drop": 0.3, "delay": 0.01},
-        {"link": "world->agent:5", "kinds": ["sense"], "drop": 0.2},
-        {"link": "agent:6->world", "kinds": ["command"], "drop": 0.1},
-    ],
-    "partitions": [{"start": 0.6, "end": 0.9, "isolate": [3]}],
-    "leader_outages": [{"start": 1.0, "end": 1.2}],
-}
-
+from support import CONFIGS, MIXED_FAULTS, PAPER_FAST
 
 def scenario_file(folder: Path, duration: float, faults: dict) -> Path:
     data = tomllib.loads(PAPER_FAST.read_text())

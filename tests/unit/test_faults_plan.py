@@ -10,7 +10,7 @@ import pytest
 from fxswarm.agents.node import AgentNode
 from fxswarm.core.messages import Clock, Command, Estimate, LeaderState, Sense
 from fxswarm.core.scenario import ScenarioError, load, parse
-from fxswarm.faults.inbox import FaultyInbox, ReplayedSense
+from fxswarm.faults.inbox import FaultyInbox, ReplayedSense, wrap
 from fxswarm.faults.plan import FAULTABLE_KINDS, Cut, FaultPlan, LinkRule, ProcessFault, parse_faults, plan_of, resolve
 from fxswarm.faults.process import Mortal, ProcessSchedule
 
@@ -275,3 +275,84 @@ def test_the_filtered_agent_acts_the_same_whatever_the_arrival_order():
     # (without the filter holding a tick back until its delayed messages arrived, all differ)
     for seed in range(6):
         assert _commands_of(seed) == canonical, seed
+
+
+def _sense(robot: int, k: int) -> Sense:
+    return Sense("world", 0, k + 1, k, k * 0.01, robot, np.zeros(3), None, None)
+
+
+def _commands(out) -> list[int]:
+    return [m.tick for _, m in out if isinstance(m, Command)]
+
+
+def _lost_and_kept(p: FaultPlan, robot: str) -> tuple[int, int]:
+    """A tick whose command ``robot`` -> world the plan loses, and one it keeps (both after 2)."""
+    fates = [(k, p.fate(robot, "world", "command", k, k * 0.01).lost) for k in range(2, 200)]
+    return next(k for k, lost in fates if lost), next(k for k, lost in fates if not lost)
+
+
+def test_a_robot_whose_command_was_lost_acts_on_its_tick_before_the_next_sensing_that_overtook_an_estimate():
+    """Over Zenoh each subscription has its own thread: when the world moved on without robot 3
+    (its command lost), its next sensing can come before the estimate it still waits for. The
+    robot must act on its tick with that estimate, then on the next one, as ``fxswarm sim`` does."""
+    sc = load(PAPER_FAST)  # robot 3: neighbours 2 and 4
+    p = FaultPlan(seed=3, rules=(LinkRule("agent:3", "world", ("command",), drop=0.5),))
+    lost, _ = _lost_and_kept(p, "agent:3")
+    inbox = FaultyInbox(AgentNode(sc, 3), "agent:3", p, sc.dt)
+    for k in range(lost):
+        out = inbox.handle("world/sense/3", _sense(3, k))
+        out += inbox.handle("agent/2/estimate", _estimate(2, k)) + inbox.handle("agent/4/estimate", _estimate(4, k))
+        assert _commands(out) == [k]
+    out = inbox.handle("world/sense/3", _sense(3, lost)) + inbox.handle("agent/2/estimate", _estimate(2, lost))
+    assert _commands(out) == []  # waits for robot 4's estimate
+    out = inbox.handle("world/sense/3", _sense(3, lost + 1))  # the world went on: this command was lost
+    assert _commands(out) == [] and inbox.node.sense.tick == lost  # held, not started over the tick
+    out = inbox.handle("agent/4/estimate", _estimate(4, lost))
+    assert _commands(out) == [lost]  # then the held tick starts and waits for its own estimates
+    out = inbox.handle("agent/2/estimate", _estimate(2, lost + 1)) + inbox.handle("agent/4/estimate", _estimate(4, lost + 1))
+    assert _commands(out) == [lost + 1]
+
+
+def test_a_robot_follows_a_world_that_gave_up_waiting_for_it():
+    """A world that closes a tick on its timeout (the command was not lost by the plan) sends the
+    next sensing all the same: the robot follows at once, skipping the tick, as before."""
+    sc = load(PAPER_FAST)
+    p = FaultPlan(seed=3, rules=(LinkRule("agent:3", "world", ("command",), drop=0.5),))
+    _, kept = _lost_and_kept(p, "agent:3")
+    inbox = FaultyInbox(AgentNode(sc, 3), "agent:3", p, sc.dt)
+    inbox.handle("world/sense/3", _sense(3, kept))
+    inbox.handle("agent/2/estimate", _estimate(2, kept))
+    inbox.handle("world/sense/3", _sense(3, kept + 1))  # robot 4's estimate for `kept` never came
+    assert inbox.node.sense.tick == kept + 1 and not inbox.pending
+    out = inbox.handle("agent/2/estimate", _estimate(2, kept + 1)) + inbox.handle("agent/4/estimate", _estimate(4, kept + 1))
+    assert _commands(out) == [kept + 1]
+    # A sensing said again for the tick the robot is on (a world asking again) reaches it, too.
+    again = inbox.handle("world/sense/3", _sense(3, kept + 1))
+    assert _commands(again) == [] and inbox.node.sense.tick == kept + 1
+
+
+def test_a_robot_held_past_a_gone_neighbour_resumes_and_the_simulator_stops_waiting():
+    sc = load(PAPER_FAST)
+    p = FaultPlan(seed=3, rules=(LinkRule("agent:3", "world", ("command",), drop=0.5),))
+    lost, _ = _lost_and_kept(p, "agent:3")
+    inbox = FaultyInbox(AgentNode(sc, 3), "agent:3", p, sc.dt)
+    inbox.handle("world/sense/3", _sense(3, lost))
+    inbox.handle("agent/2/estimate", _estimate(2, lost))
+    inbox.handle("world/sense/3", _sense(3, lost + 1))
+    assert inbox.resume() == []  # still waiting for robot 4
+    assert _commands(inbox.node.act_past_the_gone({"agent:4"})) == [lost]
+    inbox.resume()
+    assert inbox.node.sense.tick == lost + 1 and not inbox.pending
+    inbox.handle("world/sense/3", _sense(3, lost + 2))
+    if inbox.pending:  # held (the command for lost + 1 lost, too): the simulator's empty bus starts it
+        inbox.stop_waiting()
+    assert inbox.node.sense.tick == lost + 2 and not inbox.pending
+
+
+def test_a_robot_whose_only_fault_is_a_lost_command_gets_an_inbox():
+    sc = load(PAPER_FAST)
+    p = FaultPlan(seed=3, rules=(LinkRule("agent:6", "world", ("command",), drop=0.1),))
+    assert isinstance(wrap(AgentNode(sc, 6), "agent", 6, p, sc.dt), FaultyInbox)
+    assert isinstance(wrap(AgentNode(sc, 5), "agent", 5, p, sc.dt), AgentNode)  # nothing reaches robot 5
+    delayed = FaultPlan(seed=3, rules=(LinkRule("agent:6", "world", ("command",), delay=0.01),))
+    assert isinstance(wrap(AgentNode(sc, 6), "agent", 6, delayed, sc.dt), AgentNode)  # never lost
