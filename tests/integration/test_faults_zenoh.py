@@ -160,8 +160,10 @@ def samples(sc) -> dict[str, Message]:
 @pytest.mark.zenoh
 def test_garbage_on_every_key_kills_nothing_is_counted_and_leaves_the_lockstep_run_unchanged(launch_swarm):
     # A long tick timeout: a flooded process may be slow, but lock-step must wait for it, not skip.
-    # 5 s (500 ticks): long enough that the run is still going when the attack starts.
-    swarm = launch_swarm(PAPER_FAST, duration=5.0, tick_timeout=20.0)
+    # The world's clock is held (--wait-for) until every key has a subscriber the attacker knows
+    # of: 500 ticks go by in seconds, and once in twenty loaded runs (load 9) the run was over
+    # before the attacker's session had learnt of any subscriber.
+    swarm = launch_swarm(PAPER_FAST, duration=5.0, tick_timeout=20.0, world_args=("--wait-for", "test-gate/0"))
     sc = swarm.scenario
     rng = np.random.default_rng(4)
     blasts = {topic: garbage_for(topic, msg, rng) for topic, msg in samples(sc).items()}
@@ -191,6 +193,8 @@ def test_garbage_on_every_key_kills_nothing_is_counted_and_leaves_the_lockstep_r
                 listeners.append(pub.declare_matching_listener(lambda st, topic=topic: on_match(topic, st)))
                 on_match(topic, pub.matching_status)
         assert matched.wait(30), f"no subscriber on {sorted(waiting)}"
+        assert swarm.sim_time() < 0, "the world ticked before the gate opened"
+        swarm.swarm.bus.declare_alive("test-gate", 0)
         world = swarm.swarm.children["world"]
         # One payload per key in turn, so every process is hit within the first pass over the keys,
         # however soon the run ends.

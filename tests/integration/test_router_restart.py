@@ -202,7 +202,7 @@ def test_secure_failover_gets_nothing_through_a_rogue_router(tmp_path, protected
         real.kill()
         real.wait()
         end = time.monotonic() + 30
-        while (now := router_now()) in ([], first):  # failed over (a TLS link to the rogue) or not yet
+        while router_now() in ([], first):  # failed over (a TLS link to the rogue) or not yet
             assert time.monotonic() < end, "the client never linked to the next router it lists"
             time.sleep(0.05)
         # Put what the world puts, and watch for forged commands: the rogue forges 4 a second. With

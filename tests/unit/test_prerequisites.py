@@ -95,7 +95,7 @@ SKIPPED_AT_COLLECTION = {
 }
 
 
-def collection_run(tmp_path: Path, **env: str) -> subprocess.CompletedProcess:
+def collection_run(tmp_path: Path, *args: str, **env: str) -> subprocess.CompletedProcess:
     (tmp_path / "conftest.py").write_text(
         "from prerequisites import pytest_make_collect_report, pytest_runtest_makereport  # noqa: F401\n")
     for name, text in SKIPPED_AT_COLLECTION.items():
@@ -103,7 +103,7 @@ def collection_run(tmp_path: Path, **env: str) -> subprocess.CompletedProcess:
     clean = {k: v for k, v in os.environ.items()
              if k not in ("CI", prerequisites.CI_MISSING_ENV) and not k.startswith("FXSWARM_REQUIRE_")}
     return subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-o", "addopts=",
-                           "-rA", str(tmp_path)], capture_output=True, text=True, cwd=tmp_path,
+                           "-rA", *args, str(tmp_path)], capture_output=True, text=True, cwd=tmp_path,
                           env={**clean, **BARE_PYTEST, **env})
 
 
@@ -123,6 +123,15 @@ def test_on_ci_a_module_skipped_at_collection_fails_unless_its_prerequisite_was_
     assert re.search(r"^SKIPPED .*test_needs_browser.py.*prerequisite browser missing", r.stdout, re.M), r.stdout
     assert "1 skipped, 1 error" in r.stdout, r.stdout
     # (Undeclared, the prerequisite's skip fails by the same test of its reason: skip_allowed_on_ci.)
+
+
+def test_on_ci_a_module_skipped_at_collection_fails_on_pytest_xdist_workers_too(tmp_path):
+    """`make test` collects on pytest-xdist workers: their collection reports come back to the
+    controller, the planted importorskip's as an error there too."""
+    r = collection_run(tmp_path, "-p", "xdist", "-n", "2", CI="true", FXSWARM_CI_MISSING="browser")
+    assert r.returncode != 0, r.stdout
+    assert re.search(r"^ERROR test_importorskip.py", r.stdout, re.M), r.stdout
+    assert "1 passed" in r.stdout and "1 error" in r.stdout, r.stdout
 
 
 def test_a_missing_prerequisite_fails_where_its_require_variable_is_set(monkeypatch):
