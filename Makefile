@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-parallel test-unit test-integration test-docker test-zenohd lint bench clean bytecode
+.PHONY: run test test-serial test-unit test-integration test-docker test-zenohd lint bench clean bytecode
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -23,22 +23,22 @@ lint: $(STAMP)
 	$(PY) -m pip install --quiet --no-deps --no-build-isolation --target build/lint .
 	cd build/lint && ../../$(VENV)/bin/lint-imports ../../pyproject.toml
 
-# Every layer, slow ones too: tests/unit on two workers (pure tests, CPU-bound: pytest-xdist),
-# then tests/integration and tests/docker in one process (real-time runs must not share the CPUs
-# with each other). PYTEST_ARGS: more pytest options for both (.ci/run: --durations=10).
+# Every layer, slow ones too, in one pytest run on WORKERS workers (tests/conftest.py hands the
+# tests out: the docker layer on one worker, its compose projects and stacks one at a time; every
+# other module with its fixtures on one; the longest first). Run one layer after the other, the
+# swarms mostly wait and the two cores idle half the time: docs/testing.md, "Where the time goes".
+# PYTEST_ARGS: more pytest options (.ci/run: --durations=10).
 PYTEST_ARGS ?=
-test: lint bytecode
-	status=0; $(PY) -m pytest tests/unit -n 2 $(PYTEST_ARGS) || status=$$?; \
-	$(PY) -m pytest tests/integration tests/docker $(PYTEST_ARGS) || status=$$?; exit $$status
-
-# The same tests in one run on WORKERS workers (tests/conftest.py: the docker layer on one of them,
-# every other module on one): 11-12 minutes here instead of 16-18, the two cores busy 98 % of the
-# run at load 15-30. Not yet `make test`: of its two runs here one failed two integration tests
-# (docs/testing.md, "Where the time goes").
 WORKERS ?= 3
-test-parallel: lint bytecode
+test: lint bytecode
 	$(PY) -m pytest tests/unit tests/integration tests/docker -n $(WORKERS) --dist loadscope --no-loadscope-reorder \
 		$(PYTEST_ARGS)
+
+# The same tests one layer after the other: tests/unit on two workers, then tests/integration and
+# tests/docker in one process, no two swarms at once (slower: 16-19 minutes here).
+test-serial: lint bytecode
+	status=0; $(PY) -m pytest tests/unit -n 2 $(PYTEST_ARGS) || status=$$?; \
+	$(PY) -m pytest tests/integration tests/docker $(PYTEST_ARGS) || status=$$?; exit $$status
 
 # The quick layer: pure tests on two workers, without the ones marked slow (minutes of simulation, deep fuzzing).
 test-unit: $(STAMP) bytecode

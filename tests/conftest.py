@@ -44,7 +44,7 @@ def pytest_collection_modifyitems(items):
 
 
 def scope(nodeid: str) -> str:
-    """The group a test runs in under `make test-parallel`: the docker layer is one (its compose projects
+    """The group a test runs in under `make test`: the docker layer is one (its compose projects
     and stacks one at a time, as their bounds were measured, and one swarm-mode engine for the
     session; two at once, beside the integration layer, kept the machine at load 45 and failed),
     and any other test goes with its module, whose fixtures are then made once."""
