@@ -356,3 +356,6 @@ def test_a_robot_whose_only_fault_is_a_lost_command_gets_an_inbox():
     assert isinstance(wrap(AgentNode(sc, 5), "agent", 5, p, sc.dt), AgentNode)  # nothing reaches robot 5
     delayed = FaultPlan(seed=3, rules=(LinkRule("agent:6", "world", ("command",), delay=0.01),))
     assert isinstance(wrap(AgentNode(sc, 6), "agent", 6, delayed, sc.dt), AgentNode)  # never lost
+    isolated = FaultPlan(seed=3, cuts=(Cut(0.1, 0.5, (), (3,)),))
+    assert not isolated.may_lose("agent:3", "world", "command")  # cut off from robots, not from the world
+    assert FaultPlan(cuts=(Cut(0.1, 0.5, (("agent:*", "world"),), (), ("command",)),)).may_lose("agent:3", "world", "command")
