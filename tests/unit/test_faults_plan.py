@@ -285,20 +285,21 @@ def _commands(out) -> list[int]:
     return [m.tick for _, m in out if isinstance(m, Command)]
 
 
-def _lost_and_kept(p: FaultPlan, robot: str) -> tuple[int, int]:
-    """A tick whose command ``robot`` -> world the plan loses, and one it keeps (both after 2)."""
-    fates = [(k, p.fate(robot, "world", "command", k, k * 0.01).lost) for k in range(2, 200)]
-    return next(k for k, lost in fates if lost), next(k for k, lost in fates if not lost)
+def _robot_3_losing_commands() -> tuple[FaultyInbox, int, int]:
+    """Robot 3 (neighbours 2 and 4) behind its inbox, half its commands to the world lost: the
+    inbox, a tick whose command the plan loses and one it keeps (both after 2)."""
+    sc = load(PAPER_FAST)
+    p = FaultPlan(seed=3, rules=(LinkRule("agent:3", "world", ("command",), drop=0.5),))
+    fates = [(k, p.fate("agent:3", "world", "command", k, k * 0.01).lost) for k in range(2, 200)]
+    lost, kept = next(k for k, gone in fates if gone), next(k for k, gone in fates if not gone)
+    return FaultyInbox(AgentNode(sc, 3), "agent:3", p, sc.dt), lost, kept
 
 
 def test_a_robot_whose_command_was_lost_acts_on_its_tick_before_the_next_sensing_that_overtook_an_estimate():
     """Over Zenoh each subscription has its own thread: when the world moved on without robot 3
     (its command lost), its next sensing can come before the estimate it still waits for. The
     robot must act on its tick with that estimate, then on the next one, as ``fxswarm sim`` does."""
-    sc = load(PAPER_FAST)  # robot 3: neighbours 2 and 4
-    p = FaultPlan(seed=3, rules=(LinkRule("agent:3", "world", ("command",), drop=0.5),))
-    lost, _ = _lost_and_kept(p, "agent:3")
-    inbox = FaultyInbox(AgentNode(sc, 3), "agent:3", p, sc.dt)
+    inbox, lost, _ = _robot_3_losing_commands()
     for k in range(lost):
         out = inbox.handle("world/sense/3", _sense(3, k))
         out += inbox.handle("agent/2/estimate", _estimate(2, k)) + inbox.handle("agent/4/estimate", _estimate(4, k))
@@ -316,10 +317,7 @@ def test_a_robot_whose_command_was_lost_acts_on_its_tick_before_the_next_sensing
 def test_a_robot_follows_a_world_that_gave_up_waiting_for_it():
     """A world that closes a tick on its timeout (the command was not lost by the plan) sends the
     next sensing all the same: the robot follows at once, skipping the tick, as before."""
-    sc = load(PAPER_FAST)
-    p = FaultPlan(seed=3, rules=(LinkRule("agent:3", "world", ("command",), drop=0.5),))
-    _, kept = _lost_and_kept(p, "agent:3")
-    inbox = FaultyInbox(AgentNode(sc, 3), "agent:3", p, sc.dt)
+    inbox, _, kept = _robot_3_losing_commands()
     inbox.handle("world/sense/3", _sense(3, kept))
     inbox.handle("agent/2/estimate", _estimate(2, kept))
     inbox.handle("world/sense/3", _sense(3, kept + 1))  # robot 4's estimate for `kept` never came
@@ -332,10 +330,7 @@ def test_a_robot_follows_a_world_that_gave_up_waiting_for_it():
 
 
 def test_a_robot_held_past_a_gone_neighbour_resumes_and_the_simulator_stops_waiting():
-    sc = load(PAPER_FAST)
-    p = FaultPlan(seed=3, rules=(LinkRule("agent:3", "world", ("command",), drop=0.5),))
-    lost, _ = _lost_and_kept(p, "agent:3")
-    inbox = FaultyInbox(AgentNode(sc, 3), "agent:3", p, sc.dt)
+    inbox, lost, _ = _robot_3_losing_commands()
     inbox.handle("world/sense/3", _sense(3, lost))
     inbox.handle("agent/2/estimate", _estimate(2, lost))
     inbox.handle("world/sense/3", _sense(3, lost + 1))
