@@ -26,7 +26,6 @@ from fxswarm.core import bus as topics
 from fxswarm.core.messages import Message, decode_carried
 from fxswarm.core.pacing import Deadline, Pacer
 from fxswarm.core.scenario import Scenario
-from fxswarm.faults.apply import inbox_of
 from fxswarm.faults.plan import FaultPlan
 from fxswarm.runtime.process import RoleProcess, add_process_arguments, run_event_loop, run_periodic_loop, wrap_node
 from fxswarm.runtime.config import load_or_exit
@@ -86,12 +85,8 @@ class AgentProcess(RoleProcess):
         sense = self.core.sense
         if gone and sense is not None:
             gone -= self.restarting(sense.tick * self.sc.dt)
-        acted = self.core.act_past_the_gone(gone)
-        if acted:
-            self.publish(acted)
-            inbox = inbox_of(self.node)
-            if inbox is not None:  # the next tick's sensing it held while the robot waited
-                self.publish(inbox.resume())
+        # Through the node's wrappers: an inbox filter starts the tick it held while the robot waited.
+        self.publish(self.node.act_past_the_gone(gone))
 
     def restarting(self, t: float) -> set[str]:
         """Plan targets (``agent:<id>``, ``leader``) restarted by time ``t`` whose new process is

@@ -254,9 +254,8 @@ class FaultyInbox(NodeWrapper):
         """Whether the world reached tick ``k`` without this robot's commands because the plan lost
         each one since the oldest tick the robot has not acted on (so in ``fxswarm sim`` it acts on
         each of those ticks in turn), not because it gave up waiting or the robot was down."""
-        sense = getattr(self.core, "sense", None)
-        if sense is not None and self.core.acted_tick < sense.tick:
-            first = sense.tick
+        if self._acting():
+            first = self.core.sense.tick
         elif self.pending:
             first = self.pending[0][1].tick
         else:
@@ -299,10 +298,13 @@ class FaultyInbox(NodeWrapper):
             out += self._release(k) + self.node.handle(topic, sense)
         return out
 
-    def resume(self) -> list[topics.Outgoing]:
-        """Lock-step: start the held ticks that may start now (the node acted outside
-        :meth:`handle`: past a gone sender)."""
-        return self._start_pending_tick() if self.lockstep and self.pending else []
+    def act_past_the_gone(self, gone) -> list[topics.Outgoing]:
+        """Lock-step: the node acts past senders that are gone (``AgentNode.act_past_the_gone``),
+        then the held ticks that may start now do."""
+        out = self.core.act_past_the_gone(gone)
+        if out and self.lockstep and self.pending:
+            out += self._start_pending_tick()
+        return out
 
     def stop_waiting(self) -> list[topics.Outgoing]:
         """Lock-step: start every held tick now if one waits for the node to act (the simulator,

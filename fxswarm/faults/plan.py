@@ -98,7 +98,11 @@ class Cut:
     label: str = "partition"
 
     def cuts(self, sender: str, receiver: str, kind: str, t: float) -> bool:
-        if not (self.start <= t < self.end) or kind not in self.kinds:
+        return self.start <= t < self.end and self.reaches(sender, receiver, kind)
+
+    def reaches(self, sender: str, receiver: str, kind: str) -> bool:
+        """Whether this cut, while it lasts, cuts ``sender``'s ``kind`` messages to ``receiver``."""
+        if kind not in self.kinds:
             return False
         for r in self.isolate:
             me = f"agent:{r}"
@@ -237,9 +241,8 @@ class FaultPlan:
     def may_lose(self, sender: str, receiver: str, kind: str) -> bool:
         """Whether a link rule or a cut may lose some of ``sender``'s ``kind`` messages to
         ``receiver`` (whatever their tick)."""
-        cut = any(kind in c.kinds and any(fnmatchcase(sender, a) and fnmatchcase(receiver, b) for a, b in c.links)
-                  for c in self.cuts)  # (isolate cuts robots from robots and the leader, never the world)
-        return cut or any(r.matches(sender, receiver, kind) and (r.drop > 0 or r.burst is not None) for r in self.rules)
+        return any(c.reaches(sender, receiver, kind) for c in self.cuts) or any(
+            r.matches(sender, receiver, kind) and (r.drop > 0 or r.burst is not None) for r in self.rules)
 
     def lie_of(self, robot: int) -> Lie | None:
         """Robot ``robot``'s lie, if the plan makes it a liar (at most one per robot)."""
