@@ -585,6 +585,10 @@ class RestartHold:
         return False, back
 
 
+#: In :meth:`RealTimeWorld.lagging` (and ``cut_off``): the leader, waited for as a robot is.
+LEADER = 0
+
+
 class RealTimeWorld:
     """Real time: the world ticks every ``period`` s of ``clock`` on the latest command of each
     robot (zero-order hold), and measures the latency from each sensing to its command.
@@ -600,7 +604,11 @@ class RealTimeWorld:
     or answer was lost on the way (messages are dropped, not queued, when a link is congested)
     would otherwise stay silent until the limit, and the swarm would crawl at a tick per
     ``hold_limit`` with its CPUs idle. A robot that has acted on that tick sends its command
-    again (:meth:`~fxswarm.agents.node.AgentNode.handle`). ``sent_at[k]`` is the clock time the
+    again (:meth:`~fxswarm.agents.node.AgentNode.handle`). The leader is waited for likewise:
+    it stamps its states with the world's time as it last heard it, so a leader starved of CPU
+    speaks of the past, and once its states are older than the robots' staleness limit the
+    pinned robots drop them and the whole swarm flies on without its anchor (docs/design.md
+    "Real time"). ``sent_at[k]`` is the clock time the
     world sent sensing for tick ``k``; the first command of each robot for tick ``k`` gives one
     latency sample.
     """
@@ -624,6 +632,10 @@ class RealTimeWorld:
         # how stale the world saw its command get (a robot cut off or starved).
         self.heard_at: dict[int, float] = {}
         self.longest_silence: dict[int, float] = {}
+        self.leader_t: float | None = None  # the newest time stamp of the leader's states heard, s
+        # What the leader keeps time by (LeaderNode.subscriptions): asked again when it lags.
+        self.leader_clock = topics.sense_topic(world.sc.robots[0].id)
+        self.held_for: dict[int, int] = {}  # robot (LEADER: the leader) -> held periods it lagged in
 
     def subscriptions(self) -> list[str]:
         return self.inner.subscriptions()
@@ -645,6 +657,13 @@ class RealTimeWorld:
                 self.latencies.append((now or self.clock()) - sent)
         return []
 
+    def heard_leader(self, topic: str, msg: Message) -> None:
+        """The leader's state: how far its time has got. Subscribed past the fault filters (the
+        world process does it): waiting is about the machine, not the plan, and a leader whose
+        states the plan withholds from the robots still speaks on time."""
+        if self.leader_t is None or msg.t > self.leader_t:
+            self.leader_t = msg.t
+
     def start(self) -> list[topics.Outgoing]:
         """Emit tick 0 now; tick 1 is due one period later."""
         self.started = self.clock()
@@ -653,31 +672,38 @@ class RealTimeWorld:
         self._sent(self.inner.tick, out)
         return out
 
-    def lagging(self, alive: Collection[int]) -> list[int]:
-        """The robots in ``alive`` (ids of live processes) more than ``max_lag`` ticks behind, but
-        for those a fault plan cuts off from the world now: their silence is the experiment, not
-        an artefact of the machine, so it is not waited for (as lock-step does not wait)."""
+    def lagging(self, alive: Collection[int], leader_alive: bool = False) -> list[int]:
+        """The robots in ``alive`` (ids of live processes) more than ``max_lag`` ticks behind, and
+        ``LEADER`` if its process is alive and its latest state is as far behind (once heard at
+        all: a leader the world cannot hear, say under an older access policy, is not waited
+        for), but for those a fault plan cuts off from the world now: their silence is the
+        experiment, not an artefact of the machine, so it is not waited for (as lock-step does
+        not wait)."""
         if self.max_lag <= 0:
             return []
         oldest = self.inner.tick - self.max_lag
         behind = [r for r in alive if self.last_tick.get(r, -1) < oldest]
+        if leader_alive and self.leader_t is not None and round(self.leader_t / self.inner.sc.dt) < oldest:
+            behind.append(LEADER)
         if behind and self.cut_off is not None:
             t = self.inner.t
             behind = [r for r in behind if not self.cut_off(r, t)]
         return behind
 
-    def tick(self, alive: Collection[int] = ()) -> list[topics.Outgoing]:
-        """The pacer's tick is due: hold the clock for the lagging live robots (up to ``hold_limit``
-        s at a time) and send them their sensing again, else integrate one ``dt`` on the held
-        commands and emit the next tick."""
+    def tick(self, alive: Collection[int] = (), leader_alive: bool = False) -> list[topics.Outgoing]:
+        """The pacer's tick is due: hold the clock for the lagging live robots and leader (up to
+        ``hold_limit`` s at a time) and send them their sensing again (the leader: the sensing it
+        keeps time by), else integrate one ``dt`` on the held commands and emit the next tick."""
         world = self.inner
-        lagging = self.lagging(alive)
+        lagging = self.lagging(alive, leader_alive)
         if lagging:
             if self.holding is None:
                 self.holding = Deadline(self.hold_limit, self.clock)
             if not self.holding.passed():
                 self.pacer.hold()
-                keys = {topics.sense_topic(r) for r in lagging}
+                for r in lagging:
+                    self.held_for[r] = self.held_for.get(r, 0) + 1
+                keys = {self.leader_clock if r == LEADER else topics.sense_topic(r) for r in lagging}
                 again = [m for m in self.sent if m[0] in keys]
                 self.asked_again += len(again)
                 return again
@@ -688,12 +714,15 @@ class RealTimeWorld:
         return out
 
     def report(self) -> dict:
-        """``late_ticks``, ``held_ticks``, ``sensing_sent_again`` (while holding), ``achieved_speed``
+        """``late_ticks``, ``held_ticks`` (and ``held_for``: of those, the periods each robot id, or
+        ``leader``, lagged in), ``sensing_sent_again`` (while holding), ``achieved_speed``
         (simulation s per clock s), ``sense_to_command`` (:func:`latency_stats`) and
         ``longest_silence_s`` (per robot id, the longest wall time between two of its new commands)."""
         elapsed = self.clock() - self.started if self.started is not None else 0.0
         world = self.inner
-        return {"late_ticks": self.pacer.late, "held_ticks": self.pacer.held, "sensing_sent_again": self.asked_again,
+        held_for = {"leader" if r == LEADER else str(r): k for r, k in sorted(self.held_for.items())}
+        return {"late_ticks": self.pacer.late, "held_ticks": self.pacer.held, "held_for": held_for,
+                "sensing_sent_again": self.asked_again,
                 "achieved_speed": world.tick * world.sc.dt / elapsed if elapsed > 0 else None,
                 "sense_to_command": latency_stats(self.latencies),
                 "longest_silence_s": {str(r): round(s, 4) for r, s in sorted(self.longest_silence.items())}}

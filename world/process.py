@@ -32,7 +32,7 @@ import signal
 import sys
 import time
 
-from fxswarm.core.bus import WORLD_RECORD, WORLD_STATE
+from fxswarm.core.bus import LEADER_STATE, WORLD_RECORD, WORLD_STATE
 from fxswarm.core.messages import Message
 from fxswarm.core.pacing import Deadline, WallClock
 from fxswarm.core.scenario import Scenario
@@ -56,9 +56,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tick-timeout", type=positive, default=1.0, metavar="S",
                    help="lock-step: close a tick after S wall seconds without every command (default 1)")
     p.add_argument("--max-lag", type=non_negative_int, default=10, metavar="TICKS",
-                   help="real time: hold the clock while a live robot's latest command is more than TICKS "
-                        "ticks old (robots share this machine's CPUs; in the field each has its own), at most "
-                        "--tick-timeout s at a time; 0: never hold (default 10)")
+                   help="real time: hold the clock while a live robot's latest command, or the leader's latest "
+                        "state, is more than TICKS ticks old (they share this machine's CPUs; in the field each "
+                        "robot has its own), at most --tick-timeout s at a time; 0: never hold (default 10)")
     p.add_argument("--wait-timeout", type=positive, default=120.0, metavar="S",
                    help="give up (exit 3) if the leader and all agents are not up within S s (default 120)")
     p.add_argument("--wait-for", action="append", default=[], metavar="ROLE/ID",
@@ -211,19 +211,22 @@ def gone_robots(proc: RoleProcess) -> set[int]:
 def run_realtime(proc: RoleProcess, world_rt: RealTimeWorld, link=None) -> dict:
     """Tick when ``world_rt``'s pacer says so (:class:`~fxswarm.world.node.RealTimeWorld`
     decides: late ticks, holds for lagging robots); stop when the run is done. Returns its
-    report (``late_ticks``, ``held_ticks``, ``sensing_sent_again``, ``achieved_speed``, ``sense_to_command``).
+    report (``late_ticks``, ``held_ticks``, ``held_for``, ``sensing_sent_again``, ``achieved_speed``,
+    ``sense_to_command``).
     ``link``: the ROS 2 world's :class:`~fxswarm.world.ros2.Ros2Link`: each tick reads the robots'
     poses before and sends their commands after."""
     world: WorldNode = proc.core
     robots = [r.id for r in proc.sc.robots]
     proc.clock.start_now()
+    if world_rt.max_lag > 0:  # how far the leader has got, past the fault filters (RealTimeWorld.heard_leader)
+        proc.bus.subscribe(LEADER_STATE, world_rt.heard_leader)
     proc.publish(world_rt.start())
 
     def tick() -> None:
         if link is not None:
             link.read(world.board)
             world.gone = gone_robots(proc)
-        proc.publish(world_rt.tick([r for r in robots if f"agent/{r}" in proc.alive]))
+        proc.publish(world_rt.tick([r for r in robots if f"agent/{r}" in proc.alive], "leader/0" in proc.alive))
         if link is not None:
             link.send(world.velocities(), world.board.yaw)
         proc.clock.observe(world.t)
@@ -296,8 +299,9 @@ def main(args: argparse.Namespace) -> int:
             runner = dict(clock=args.clock, speed=args.speed if not proc.lockstep else None,
                           complete=world.done, missed_ticks=world.missed_ticks,
                           missed_ticks_per_robot={str(r.id): int(m) for r, m in zip(sc.robots, world.misses)})
-            runner.update({k: extra[k] for k in ("sense_to_command", "late_ticks", "held_ticks", "sensing_sent_again",
-                                                 "achieved_speed", "longest_silence_s") if k in extra})
+            runner.update({k: extra[k] for k in ("sense_to_command", "late_ticks", "held_ticks", "held_for",
+                                                 "sensing_sent_again", "achieved_speed", "longest_silence_s")
+                           if k in extra})
 
             def summarise(processes: dict) -> dict:
                 return build_summary(sc, world.trajectory(), proc.plan, wall_s=wall, world=world, runner=runner,

@@ -262,11 +262,17 @@ class FaultPlan:
         return any(c.cuts(sender, receiver, kind, t) for c in self.cuts)
 
     def cut_off_from_world(self, robot: int, t: float) -> bool:
-        """Whether the plan keeps robot ``robot`` and the world from answering each other at
-        time ``t`` (s): its sensing or its commands cut by a partition, or lost, every one, by a
-        link rule (the real-time world does not wait for it)."""
+        """Whether the plan keeps robot ``robot`` (0: the leader) and the world from answering
+        each other at time ``t`` (s): the process killed or frozen, its sensing or its commands
+        cut by a partition, or lost, every one, by a link rule (the real-time world does not
+        wait for it). The leader keeps time by the sensing it hears, and the world hears its
+        states past the fault filters (:meth:`~fxswarm.world.node.RealTimeWorld.heard_leader`),
+        so only the sensing counts for it."""
+        if robot == 0:
+            return (self.down("leader", t) or self.cut("world", "leader", "sense", t)
+                    or self.loses_all("world", "leader", "sense"))
         me = f"agent:{robot}"
-        return (self.cut("world", me, "sense", t) or self.cut(me, "world", "command", t)
+        return (self.down(me, t) or self.cut("world", me, "sense", t) or self.cut(me, "world", "command", t)
                 or self.loses_all("world", me, "sense") or self.loses_all(me, "world", "command"))
 
     def loses_all(self, sender: str, receiver: str, kind: str) -> bool:

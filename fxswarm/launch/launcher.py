@@ -69,7 +69,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "to another when its router is lost (default 1; a router that dies is started again)")
     p.add_argument("--lease-ms", type=positive_int, default=None, help="zenoh lease (how fast a frozen process is seen gone)")
     p.add_argument("--max-lag", type=non_negative_int, default=None, metavar="TICKS",
-                   help="real time: the world holds its clock while a robot is more than TICKS ticks behind "
+                   help="real time: the world holds its clock while a robot or the leader is more than TICKS ticks behind "
                         "(default 10; 0: never)")
     p.add_argument("--no-logger", action="store_true", help="do not start the Rerun logger process")
     p.add_argument("--rerun", default=None, metavar="OUTPUTS",

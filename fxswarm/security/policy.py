@@ -58,7 +58,9 @@ def rights(scenario: Scenario) -> dict[str, dict[str, list[str]]]:
     keys it may serve (declare a queryable, be sent the queries, reply)."""
     out: dict[str, dict[str, list[str]]] = {
         "router": {"put": [], "hear": [], "tokens": []},
-        "world": {"put": ["world/**"], "hear": WorldNode(scenario, record=False).subscriptions(),
+        # The real-time world also hears the leader's states, to wait for a lagging leader.
+        "world": {"put": ["world/**"],
+                  "hear": [*WorldNode(scenario, record=False).subscriptions(), topics.LEADER_STATE],
                   "tokens": [topics.alive_topic("world", 0), topics.RUN_OVER], "answer": [topics.WORLD_RECORD]},
         "leader": {"put": [topics.LEADER_STATE], "hear": [*LeaderNode(scenario).subscriptions(), topics.RESYNC],
                    "tokens": [topics.alive_topic("leader", 0)]},

@@ -370,6 +370,73 @@ def test_a_real_time_world_does_not_hold_for_a_robot_whose_link_rule_loses_every
     assert (rt.inner.tick, rt.pacer.held) == ((6, 0) if lost else (3, 3))  # held from tick 3
 
 
+def leader_state(sc, t: float) -> tuple[str, LeaderState]:
+    return topics.LEADER_STATE, LeaderState("leader", 0, 1, 0, t, sc.leader.position(t), None)
+
+
+def all_robots_answer(rt, sc, ticks: int, clock: FakeClock, alive, leader_alive: bool = True, leader_upto: float = -1.0):
+    """Every robot answers each of ``ticks`` more ticks; the leader's states get as far as
+    ``leader_upto`` s of the world's time."""
+    for _ in range(ticks):
+        k = rt.inner.tick
+        for r in range(1, sc.n + 1):
+            rt.handle(topics.command_topic(r), command(r, k, k * sc.dt, [0, 0, 0]))
+        if k * sc.dt <= leader_upto + 1e-9:
+            rt.heard_leader(*leader_state(sc, k * sc.dt))
+        clock.advance(0.01)
+        rt.tick(alive, leader_alive)
+
+
+def test_a_real_time_world_holds_the_clock_for_a_lagging_leader_and_asks_it_again(sc):
+    """The leader's states stop at 0.02 s (its process starved of CPU; they are stamped with the
+    world's time as the leader last heard it): more than max_lag ticks on, the world holds its
+    clock and sends again the sensing the leader keeps time by, as for a lagging robot, and goes
+    on once a state of the current time arrives. Without it, the pinned robots dropped the
+    leader's stale states and the swarm flew on without its anchor (docs/design.md "Real time")."""
+    assert RealTimeWorld(WorldNode(sc, record=False), 0.01, FakeClock()).leader_clock \
+        == LeaderNode(sc).subscriptions()[0]
+    clock = FakeClock()
+    rt = realtime_world(sc, clock, max_lag=3, hold_limit=1.0)
+    alive = range(1, sc.n + 1)
+    all_robots_answer(rt, sc, 7, clock, alive, leader_upto=0.02)
+    assert rt.inner.tick == 6 and rt.pacer.held == 1  # 3 ticks behind (tick 5) is no lag; 4 (tick 6) is
+    for held in (2, 3):
+        clock.advance(0.01)
+        out = rt.tick(alive, True)
+        assert rt.inner.tick == 6 and rt.pacer.held == held
+        assert [topic for topic, _ in out] == [rt.leader_clock]
+        assert out[0][1] is dict(rt.sent)[rt.leader_clock]  # tick 6's sensing, as first sent
+    rt.heard_leader(*leader_state(sc, 6 * sc.dt))
+    clock.advance(0.01)
+    out = rt.tick(alive, True)
+    assert rt.inner.tick == 7 and sum(type(m) is Sense for _, m in out) == sc.n
+    assert rt.report()["held_for"] == {"leader": 3} and rt.report()["sensing_sent_again"] == 3
+
+
+@pytest.mark.parametrize("case", ["never heard", "process gone", "frozen by the plan", "its sensing cut"])
+def test_a_real_time_world_does_not_hold_for_a_leader_it_cannot_or_should_not_wait_for(sc, case):
+    """Not waited for: a leader never heard (a world that may not hear it, under an access policy
+    from before it did, would otherwise hold every tick), one whose process is gone, one the
+    plan freezes, one whose clock source the plan cuts."""
+    faults = {"frozen by the plan": {"processes": [{"target": "leader", "freeze": 0.0, "thaw": 9.0}]},
+              "its sensing cut": {"partitions": [{"start": 0.0, "end": 9.0, "links": ["world->leader"],
+                                                  "kinds": ["sense"]}]}}.get(case, {})
+    plan = parse_faults(faults, 7, sc.n)
+    assert plan.cut_off_from_world(0, 0.05) is bool(faults) and not plan.cut_off_from_world(1, 0.05)
+    clock = FakeClock()
+    rt = realtime_world(sc, clock, max_lag=3, hold_limit=1.0, cut_off=plan.cut_off_from_world)
+    all_robots_answer(rt, sc, 10, clock, range(1, sc.n + 1), leader_alive=case != "process gone",
+                      leader_upto=-1.0 if case == "never heard" else 0.0)
+    assert rt.inner.tick == 10 and rt.pacer.held == 0 and rt.report()["held_for"] == {}
+
+
+def test_a_plan_that_freezes_a_robot_cuts_it_off_from_the_world_while_frozen(sc):
+    plan = parse_faults({"processes": [{"target": "agent:2", "freeze": 1.0, "thaw": 2.0},
+                                       {"target": "agent:3", "kill": 1.0}]}, 7, sc.n)
+    assert [plan.cut_off_from_world(2, t) for t in (0.5, 1.0, 1.99, 2.0)] == [False, True, True, False]
+    assert plan.cut_off_from_world(3, 5.0) and not plan.cut_off_from_world(0, 1.5)
+
+
 def test_the_world_holds_a_silent_robots_last_command_then_stops_it(sc):
     clock = FakeClock()
     rt = realtime_world(sc, clock)
