@@ -126,14 +126,31 @@ def test_realtime_run_goes_on_through_a_router_restart_and_recovers_formation(la
     assert outage["start"] > 9.0 and outage["end"] is not None and outage["end"] > outage["start"], outage
     assert outage["ticks"] > 0, outage
     # It showed in the flight: the world held each robot it could not hear at zero, from
-    # silent_hold (0.5 s: 50 ticks) into the outage to its end, and none while the router was up.
-    # Measured (40 runs of issue 40 at load average 9-36, `fxswarm router`): held the outage's
-    # ticks less 33-50, over outages of 137-1328 ticks; a world that holds none fails here (less
-    # 100 allowed: twice silent_hold). zenohd came back within 20 ticks, before any robot was held.
+    # silent_hold (0.5 s: 50 ticks) into the outage until it heard the robot again, and none
+    # while the router was up. Measured (40 runs of issue 40 at load average 9-36, `fxswarm
+    # router`): held the outage's ticks less 33-50, over outages of 137-1328 ticks; a world that
+    # holds none fails here (less 100 allowed: twice silent_hold). zenohd came back within 20
+    # ticks, before any robot was held. A robot may reach the new router after the world does
+    # (Zenoh's reconnection retries): once robots 1 and 3 came back 1 s after the others, held
+    # 130 ticks past the world's outage. So each robot's hold is judged by itself: one stretch,
+    # from silent_hold into the outage (0.40-0.51 s in 21 runs at load 4-18) to the world's having
+    # the router again or later (-0.01 to +0.11 s, 1.3 s for those two).
     # (The error's growth is no such check: without an outage the error between 10 and 20 s still
     # exceeded the error before 10 s, 1.73 m against 1.58 m, as paper-fast's obstacles come.)
     held, hold_ticks = summary["degraded"]["ticks"], round(DegradedLimits.silent_hold / swarm.scenario.dt)
-    assert outage["ticks"] - 2 * hold_ticks <= held <= outage["ticks"], (held, outage)
+    assert held >= outage["ticks"] - 2 * hold_ticks, (held, outage)
+    traj = load_trajectory(swarm.out)
+    for r in range(swarm.scenario.n):
+        still = np.all(traj["v"][:, r] == 0.0, axis=1)
+        first = int(np.argmin(still))  # the first tick it moved: before, no command had come yet
+        zero = np.flatnonzero(still[first:]) + first
+        if not len(zero):  # never held: only through an outage shorter than silent_hold (zenohd's)
+            assert outage["ticks"] <= hold_ticks, (r + 1, outage)
+            continue
+        stretch = (r + 1, traj["t"][zero[0]], traj["t"][zero[-1]], len(zero))
+        assert zero[-1] - zero[0] + 1 == len(zero), (stretch, outage)
+        assert traj["t"][zero[0]] >= outage["start"] + DegradedLimits.silent_hold - 0.2, (stretch, outage)
+        assert traj["t"][zero[-1]] >= outage["end"] - 0.1, (stretch, outage)
     # And the formation recovered: the final error 0.015-0.226 m in 40 runs at load average 9-36,
     # and at most 0.232 m over the last 2 s (the law's chatter under load: the last tick samples
     # it). 0.5 m is 2.2x the worst; a swarm that does not recover stays meters off (3.0-31.6 m
