@@ -34,7 +34,7 @@ class LeaderNode:
         self.said_t: float | None = None  # real time: the simulation time of the last state sent, s
 
     def subscriptions(self) -> list[str]:
-        return [topics.sense_topic(self.sc.robots[0].id)]  # the world's tick, as a robot hears it
+        return [topics.leader_clock_topic(self.sc.robots[0].id)]  # the world's tick, as a robot hears it
 
     def handle(self, topic: str, msg: Message) -> list[topics.Outgoing]:
         if isinstance(msg, Sense):

@@ -608,9 +608,8 @@ class RealTimeWorld:
     it stamps its states with the world's time as it last heard it, so a leader starved of CPU
     speaks of the past, and once its states are older than the robots' staleness limit the
     pinned robots drop them and the whole swarm flies on without its anchor (docs/design.md
-    "Real time"). ``sent_at[k]`` is the clock time the
-    world sent sensing for tick ``k``; the first command of each robot for tick ``k`` gives one
-    latency sample.
+    "Real time"). ``sent_at[k]`` is the clock time the world sent sensing for tick ``k``; the
+    first command of each robot for tick ``k`` gives one latency sample.
     """
 
     def __init__(self, world: WorldNode, period: float, clock: WallClock, max_lag: int = 10,
@@ -633,8 +632,7 @@ class RealTimeWorld:
         self.heard_at: dict[int, float] = {}
         self.longest_silence: dict[int, float] = {}
         self.leader_t: float | None = None  # the newest time stamp of the leader's states heard, s
-        # What the leader keeps time by (LeaderNode.subscriptions): asked again when it lags.
-        self.leader_clock = topics.sense_topic(world.sc.robots[0].id)
+        self.leader_clock = topics.leader_clock_topic(world.sc.robots[0].id)  # asked again when it lags
         self.held_for: dict[int, int] = {}  # robot (LEADER: the leader) -> held periods it lagged in
 
     def subscriptions(self) -> list[str]:

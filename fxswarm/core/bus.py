@@ -43,6 +43,13 @@ def sense_topic(robot: int) -> str:
     return f"world/sense/{robot}"
 
 
+def leader_clock_topic(first_robot: int) -> str:
+    """What the leader keeps time by: the first robot's sensing (the leader hears nothing else
+    of the world's). The leader subscribes to it; a real-time world asks a lagging leader again
+    on it."""
+    return sense_topic(first_robot)
+
+
 def estimate_topic(robot: int) -> str:
     return f"agent/{robot}/estimate"
 
