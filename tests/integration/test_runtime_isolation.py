@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections import Counter
 
 import numpy as np
 import pytest
@@ -46,15 +47,19 @@ GATE = "test-gate"
 def test_a_second_swarm_on_the_same_router_never_reaches_the_first(launch_swarm):
     """The intruders shout on every key of the swarm's for the whole of its run. Its clock is held
     (``--wait-for``) until they hear each other: a lock-step second ticks as fast as the robots
-    answer, and on a loaded machine the run was over before they had shouted three times."""
-    swarm = launch_swarm(PAPER_FAST, duration=2.0, world_args=("--wait-for", f"{GATE}/0"))
+    answer, and on a loaded machine the run was over before they had shouted three times.
+    A long tick timeout, as where any run is compared with the simulator: beside the shouting
+    and two other swarms a tick once took longer than the default 1 s, closed without every
+    command, and the run parted from the sim (2 of 20 runs at load 10-14)."""
+    swarm = launch_swarm(PAPER_FAST, duration=2.0, tick_timeout=20.0, world_args=("--wait-for", f"{GATE}/0"))
     options = ZenohOptions("client", (swarm.swarm.endpoint,), (), False)
     shouter, listener = ZenohBus("intruders", options), ZenohBus("intruders", options)
     try:
         heard: list[str] = []
         listener.subscribe("**", lambda topic, payload: heard.append(topic), raw=True)
         alive: list[str] = []
-        listener.watch_alive("**", lambda name, up: alive.append(name))
+        changes: list[tuple[str, bool]] = []  # every token change the listener saw, for the failure message
+        listener.watch_alive("**", lambda name, up: (alive.append(name), changes.append((name, up))))
         listener.declare_alive("test", 1)  # after its subscription: once seen, the router routes to it
         ready: list[str] = []
         shouter.watch_alive("test/1", lambda name, up: ready.append(name))
@@ -75,7 +80,12 @@ def test_a_second_swarm_on_the_same_router_never_reaches_the_first(launch_swarm)
         # run (1 run of 20; how many were missing was not said): the wait now goes on while they
         # still come, and ends when none more has come for 10 s; a shout lost fails with the counts.
         last = hear_out(listener, heard, sent, quiet=10.0)
-        assert len(heard) == sent, f"heard {len(heard)} of {sent} shouts (the last after {last:.1f} s, none for 10 s since)"
+        # Once in a whole-suite run (1 of 7 this round) 965 of 6300 were lost, cause not found:
+        # say which keys lost how many, and whether the listener's link went (its token down).
+        per_key, got = sent // len(shouts(1)), Counter(heard)
+        missing = {t: per_key - got[t] for t, _ in shouts(1) if got[t] < per_key}
+        assert len(heard) == sent, (f"heard {len(heard)} of {sent} shouts (the last after {last:.1f} s, none for "
+                                    f"10 s since); {per_key} sent per key, missing {missing}; token changes {changes}")
         assert wait_until(listener, lambda: alive, 5) and set(alive) == {"test/1"}  # no token of the swarm's
     finally:
         shouter.close()
