@@ -34,7 +34,7 @@ from fxswarm.core.nearest import NearestCache, have_tree, nearest_objects_blocke
 from fxswarm.core.pacing import Deadline, Pacer, WallClock
 from fxswarm.core.scenario import Scenario
 from fxswarm.core.sensing import Sensors
-from fxswarm.faults.plan import DegradedLimits, degraded_limits
+from fxswarm.faults.plan import LEADER, DegradedLimits, degraded_limits
 
 
 #: Above this many robots the nearest object comes from a KD-tree, not an n x (n + m) matrix.
@@ -583,10 +583,6 @@ class RestartHold:
             self.pending.pop(0)
             self.since = None
         return False, back
-
-
-#: In :meth:`RealTimeWorld.lagging` (and ``cut_off``): the leader, waited for as a robot is.
-LEADER = 0
 
 
 class RealTimeWorld:

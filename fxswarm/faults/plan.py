@@ -35,6 +35,9 @@ FAULTABLE_KINDS = ("estimate", "leader", "sense", "command")
 LATE_KINDS = ("estimate", "leader")
 #: What a partition or an isolation cuts unless told: the robots' radio, not physics.
 CUT_KINDS_DEFAULT = ("estimate", "leader")
+#: The leader, where a robot id is asked for (:meth:`FaultPlan.cut_off_from_world`; the real-time
+#: world waits for it as for a robot). Robot ids start at 1.
+LEADER = 0
 
 
 @dataclass(frozen=True)
@@ -262,13 +265,13 @@ class FaultPlan:
         return any(c.cuts(sender, receiver, kind, t) for c in self.cuts)
 
     def cut_off_from_world(self, robot: int, t: float) -> bool:
-        """Whether the plan keeps robot ``robot`` (0: the leader) and the world from answering
+        """Whether the plan keeps robot ``robot`` (``LEADER``: the leader) and the world from answering
         each other at time ``t`` (s): the process killed or frozen, its sensing or its commands
         cut by a partition, or lost, every one, by a link rule (the real-time world does not
         wait for it). The leader keeps time by the sensing it hears, and the world hears its
         states past the fault filters (:meth:`~fxswarm.world.node.RealTimeWorld.heard_leader`),
         so only the sensing counts for it."""
-        if robot == 0:
+        if robot == LEADER:
             return (self.down("leader", t) or self.cut("world", "leader", "sense", t)
                     or self.loses_all("world", "leader", "sense"))
         me = f"agent:{robot}"
