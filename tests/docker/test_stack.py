@@ -179,7 +179,9 @@ def test_stack_runs_paper_fast_survives_a_killed_agent_and_attach_collects_the_r
     for key in ("ticks", "min_object_distance_m", "formation_error_final_m", "estimate_error_final_m"):
         assert summary[key] == own[key], key
     assert own["faults"]["degraded_ticks"].get("world_held_at_zero", {}).get("3", 0) > 0, "robot 3 was missed"
-    assert summary["min_object_distance_m"] >= 1.8
+    # Only for an early kill: killed at 15, 20 or 25.16 s, `fxswarm sim` passes 1.76, 1.69 and 1.49 m
+    # (docs/testing.md: the failed run's kill landed at 25.2 s). Say when it landed.
+    assert summary["min_object_distance_m"] >= 1.8, (summary["min_object_distance_m"], killed_t, back_t)
     assert summary["formation_error_final_m"] <= 0.15
     assert summary["estimate_error_final_m"] <= 0.15
     assert recording_bytes > 100_000
