@@ -66,6 +66,11 @@ SCENARIO_KEY = topics.SCENARIO  # under the swarm's prefix: the scenario file's 
 IDENTITY = "observer"
 PROGRESS_EVERY_S = 2.0
 SETTLE_S = 1.0  # after run/over: states still in flight
+#: A departure seen at most this long (s) before the world's run/over token is the run's end, not a
+#: death: everyone leaves once the world ends the run, and their departures can overtake its token
+#: (by 0.08 s, seen here) while a live stream that lags on a loaded host still brings states a
+#: second or more of simulation old.
+END_S = 2.0
 #: The world's token gone without run/over (killed, frozen or cut off past its lease): the run
 #: cannot go on (the world is the simulation). Its run/over may still be on the way: wait this long.
 WORLD_GONE_S = 3.0
@@ -96,8 +101,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 class Observer:
     """The run as the world's states tell it: arrays by tick, plus who came and went."""
 
-    def __init__(self, sc: Scenario, cut_around=lambda _when: False) -> None:
+    def __init__(self, sc: Scenario, cut_around=lambda _when: False, clock=time.monotonic) -> None:
         self.sc = sc
+        self.clock = clock
         # (monotonic s) -> whether this observer had lost every router itself about then: tokens
         # that go with our own link went nowhere (Connectivity.cut_around)
         self.cut_around = cut_around
@@ -117,9 +123,11 @@ class Observer:
         self.last_t = 0.0
         self.alive: set[str] = set()
         self.ever: set[str] = set()
-        self.gone_at: dict[str, list[int]] = {}  # role/id -> the last tick seen when its token went
+        # role/id -> (the last tick seen, when (monotonic s)) each time its token went
+        self.gone_at: dict[str, list[tuple[int, float]]] = {}
         self.back: dict[str, int] = {}  # role/id -> times it came back after that
         self.run_over = False
+        self.over_at: float | None = None  # when run/over was seen (monotonic s)
 
     def take(self, msg: WorldState) -> None:
         k = msg.tick
@@ -150,20 +158,22 @@ class Observer:
             self.ever.add(name)
         elif name in self.alive:
             self.alive.discard(name)
-            self.left_at[name] = (time.monotonic(), not self.run_over)
+            now = self.clock()
+            self.left_at[name] = (now, not self.run_over)
             if not self.run_over:  # judged in deaths(): the world's last states may still be on their way
-                self.gone_at.setdefault(name, []).append(self.last_tick)
+                self.gone_at.setdefault(name, []).append((self.last_tick, now))
 
     def deaths(self) -> dict[str, int]:
         """role/id -> times it went during the run. Everyone leaves once the world ends the run,
         and those departures can reach us before the world's last states and its run/over token:
         a departure counts only if the process came back after it, or if the world went on
-        ticking for a second of simulation time after it."""
+        ticking for a second of simulation time after it and its run/over came more than
+        :data:`END_S` later (a live stream that lags brings that second after the departure)."""
         grace = max(1, math.ceil(1.0 / self.sc.dt))
         out = {}
-        for name, ticks in self.gone_at.items():
-            n = sum(1 for i, k in enumerate(ticks)
-                    if i < self.back.get(name, 0) or self.last_tick - k > grace)
+        for name, went in self.gone_at.items():
+            n = sum(1 for i, (k, when) in enumerate(went)
+                    if i < self.back.get(name, 0) or (self.last_tick - k > grace and not self.ends_run(when)))
             if n:
                 out[name] = n
         return out
@@ -172,9 +182,14 @@ class Observer:
         """The world was seen and its liveliness token is gone, and it has not ended the run."""
         return "world/0" in self.ever and "world/0" not in self.alive and not self.run_over
 
+    def ends_run(self, when: float) -> bool:
+        """Whether a departure seen at ``when`` came with the world's end of the run."""
+        return self.over_at is not None and self.over_at - when <= END_S
+
     def on_run_over(self, _topic: str, up: bool) -> None:
-        if up:
+        if up and not self.run_over:
             self.run_over = True
+            self.over_at = self.clock()
 
     def trajectory(self) -> dict[str, np.ndarray]:
         """The ticks from 0 to the last one seen (rows of missed ticks stay zero; counted)."""

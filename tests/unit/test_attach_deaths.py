@@ -58,3 +58,26 @@ def test_tokens_that_go_and_come_back_with_our_own_link_are_nobodys_death():
     obs.last_tick = obs.sc.ticks - 1
     assert obs.deaths() == {"agent/2": 1}
     assert obs.observed()["restarts"] == {"agent/2": [1, 0]}
+
+
+def test_leaving_at_the_end_behind_a_lagging_live_stream_is_not_a_death():
+    """Loaded, the live stream lags (its states seconds of simulation old) and the departures at
+    the end can overtake the world's run/over token: they are still the run's end (a Swarm stack
+    run once counted every process dead so). A process killed mid-run still counts."""
+    now = {"s": 0.0}
+    obs = Observer(load(PAPER_FAST), clock=lambda: now["s"])
+    for i in (1, 2, 3):
+        obs.on_alive(f"agent/{i}", True)
+    obs.last_tick = 400
+    now["s"] = 5.0
+    obs.on_alive("agent/3", False)  # killed, never back
+    end = obs.sc.ticks
+    obs.last_tick = end - 300  # the stream 3 s of simulation behind the world
+    now["s"] = 20.0
+    obs.on_alive("agent/1", False)
+    obs.on_alive("agent/2", False)
+    now["s"] = 20.08
+    obs.on_run_over("run/over", True)
+    obs.last_tick = end - 1  # the stream catches up
+    assert obs.deaths() == {"agent/3": 1}
+    assert obs.observed()["restarts"] == {"agent/3": [1, 0]}
