@@ -26,7 +26,11 @@ import numpy as np
 import pytest
 
 from docker_support import TAG, leftovers, remove_stack, sh
+from fxswarm.core.scenario import load
 from fxswarm.launch.launcher import free_port
+from fxswarm.launch.sim import Simulation
+from fxswarm.runtime.output import load_trajectory
+from fxswarm.study.campaign import trajectory_differences
 
 pytestmark = [pytest.mark.docker, pytest.mark.stack, pytest.mark.timeout(1800)]
 
@@ -83,27 +87,21 @@ def hold_restarts(stack_file: Path) -> None:
     operator."""
     import yaml
 
-    head, _, _ = stack_file.read_text().partition("version:")
-    doc = yaml.safe_load(stack_file.read_text())
+    text = stack_file.read_text()
+    head, _, _ = text.partition("version:")
+    doc = yaml.safe_load(text)
     command = doc["services"]["world"]["command"]
     assert "--hold-restarts" not in command, command
     command.append("--hold-restarts")
     stack_file.write_text(head + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=100))
 
 
-def against_sim(scenario: Path, trajectory: Path) -> tuple[dict, list[str]]:
-    """`fxswarm sim` of ``scenario`` (its plan included): its summary, and the keys of
-    ``trajectory`` (the stack's record) that differ from its trajectory."""
-    from fxswarm.core.scenario import load
-    from fxswarm.launch.sim import Simulation
-
+def against_sim(scenario: Path, got: dict[str, np.ndarray]) -> tuple[dict, list[str]]:
+    """`fxswarm sim` of ``scenario`` (its plan included): its summary, and the arrays of ``got``
+    (the stack's trajectory) that differ from its own."""
     sim = Simulation(load(scenario))
     summary = sim.run()
-    expected = sim.trajectory()
-    with np.load(trajectory) as got:
-        differ = sorted(k for k in set(got.files) | set(expected)
-                        if k not in got.files or k not in expected or not np.array_equal(got[k], expected[k]))
-    return summary, differ
+    return summary, trajectory_differences(got, sim.trajectory())
 
 
 def finished_world_tasks(stack: str, timeout: float = 180.0) -> list[str]:
@@ -156,7 +154,7 @@ def test_stack_runs_paper_fast_survives_a_killed_agent_and_attach_collects_the_r
         watch = Watch(endpoint, stack)
         watch.wait("all six agents alive", lambda: len(watch.alive) == 6, 600)
         up_s = time.monotonic() - started
-        dt = 0.01
+        dt = load(scenario).dt
         watch.wait("the world holding the restart's tick", lambda: watch.world_t >= RESTART_T - dt - 1e-9, 300)
         # Kill robot 3's (silent) task: Swarm must start a new task in slot 3, and robot 3 fly again.
         victim = agent_task_container(stack, 3)
@@ -202,14 +200,12 @@ def test_stack_runs_paper_fast_survives_a_killed_agent_and_attach_collects_the_r
     left = leftovers(stack)
     summary = json.loads((seen / "summary.json").read_text())
     recording_bytes = (seen / "recording.rrd").stat().st_size if (seen / "recording.rrd").exists() else 0
-    with np.load(seen / "trajectory.npz") as traj:
-        p_shape = traj["p"].shape
+    mine = load_trajectory(seen)
     # attach wrote the world's own record (world/record), not what the live stream brought: every tick.
     same_bytes = (seen / "trajectory.npz").read_bytes() == own_npz
-    with np.load(seen / "trajectory.npz") as mine, np.load(io.BytesIO(own_npz)) as theirs:
-        differ = sorted(k for k in set(mine.files) | set(theirs.files)
-                        if k not in mine.files or k not in theirs.files or not np.array_equal(mine[k], theirs[k]))
-    sim_summary, sim_differs = against_sim(scenario, seen / "trajectory.npz")
+    with np.load(io.BytesIO(own_npz)) as theirs:
+        differ = trajectory_differences(mine, {k: theirs[k] for k in theirs.files})
+    sim_summary, sim_differs = against_sim(scenario, mine)
     shutil.rmtree(folder, ignore_errors=True)
     assert left == [], left
     # Within the bounds `fxswarm run` meets on paper-fast, and the same figures the world computed.
@@ -234,4 +230,4 @@ def test_stack_runs_paper_fast_survives_a_killed_agent_and_attach_collects_the_r
     assert summary["formation_error_final_m"] <= 0.15
     assert summary["estimate_error_final_m"] <= 0.15
     assert recording_bytes > 100_000
-    assert p_shape == (summary["ticks"], 6, 3)
+    assert mine["p"].shape == (summary["ticks"], 6, 3)

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fxswarm.runtime.output import load_trajectory
 from fxswarm.testing import scenario_with
 
 from support import PAPER_FAST, REPO, fxswarm_command, port_nobody_listens_on
@@ -126,8 +127,7 @@ def test_a_killed_agent_is_reported_and_the_swarm_runs_on_to_the_end(launch_swar
     # no other robot's. Its death's tick is the world's own record's: robot 3's estimate (from its
     # command) moves every tick it is heard, and is held from then on. (Not the launcher's view of
     # the clock: lock-step runs on while it reacts; once, a kill after t = 0.5 s landed at tick 104.)
-    with np.load(swarm.out / "trajectory.npz") as traj:
-        ph3 = traj["ph"][:, 2]
+    ph3 = load_trajectory(swarm.out)["ph"][:, 2]
     last_heard = int(np.flatnonzero(np.any(ph3[1:] != ph3[:-1], axis=1))[-1]) + 1
     print(f"robot 3 last heard at tick {last_heard}; missed {summary['missed_ticks_per_robot']}")
     assert 50 <= last_heard < 199  # killed after t = 0.5 s, before the end
